@@ -1,0 +1,1 @@
+"""Baseline runners (MeshLab, CGAL, classic detectors), datasets and benchmark harness."""

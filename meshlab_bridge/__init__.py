@@ -1,0 +1,1 @@
+"""MeshSet conversion, the plugin-style filter registry, and the pcprep command line."""
