@@ -15,61 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from filters._validation import InvalidParameterError, check_choice, check_param
-
-#: units a parameter may carry; lengths are always in units of h
-UNITS = {
-    "h": "× average spacing h",
-    "deg": "degrees",
-    "count": "count",
-    "fraction": "fraction",
-    None: "",
-}
+from filters._params import UNITS, Param, resolve_params  # noqa: F401  (re-exported)
+from filters._validation import InvalidParameterError
 
 #: how a filter's result lands in a MeshSet
 KINDS = ("coord", "scalar", "selection", "new_layer", "measure")
-
-
-@dataclass(frozen=True)
-class Param:
-    """One filter parameter.
-
-    ``kind`` is one of ``float``, ``int``, ``bool``, ``str``; a ``str`` parameter
-    with ``choices`` is an enumeration.  ``low``/``high``/``closed`` bound
-    numbers (never clamped).  ``default=None`` with ``optional=True`` means
-    "resolved from the data at call time".
-    """
-
-    name: str
-    kind: type
-    default: Any
-    help: str
-    low: float | None = None
-    high: float | None = None
-    closed: str = "both"
-    unit: str | None = None
-    choices: tuple = ()
-    optional: bool = False
-    advanced: bool = False
-
-    def check(self, value, func: str):
-        if value is None and self.optional:
-            return None
-        if self.choices:
-            return check_choice(value, func=func, name=self.name, choices=self.choices)
-        return check_param(value, func=func, name=self.name, kind=self.kind, low=self.low,
-                           high=self.high, closed=self.closed, unit=UNITS.get(self.unit) or None)
-
-    def range_text(self) -> str:
-        if self.choices:
-            return " | ".join(str(c) for c in self.choices)
-        if self.low is None and self.high is None:
-            return ""
-        lb = "[" if self.closed in ("both", "left") else "("
-        rb = "]" if self.closed in ("both", "right") else ")"
-        lo = "-inf" if self.low is None else f"{self.low:g}"
-        hi = "inf" if self.high is None else f"{self.high:g}"
-        return f"{lb}{lo}, {hi}{rb}"
 
 
 @dataclass(frozen=True)
@@ -129,21 +79,8 @@ class FilterSpec:
         return {p.name: p.default for p in self.params}
 
     def resolve(self, params: dict) -> dict:
-        """Validate ``params`` against the declaration and fill in defaults.
-
-        Unknown names raise ``InvalidParameterError`` listing the known ones.
-        """
-        known = {p.name for p in self.params}
-        unknown = sorted(set(params) - known)
-        if unknown:
-            raise InvalidParameterError(
-                f"{self.name}: unknown parameter(s) {', '.join(map(repr, unknown))}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        out = {}
-        for p in self.params:
-            out[p.name] = p.check(params.get(p.name, p.default), self.name)
-        return out
+        """Validate ``params`` against the declaration and fill in defaults."""
+        return resolve_params(self.params, params, self.name)
 
 
 FILTERS: dict[str, FilterSpec] = {}

@@ -1,0 +1,210 @@
+"""
+lasso_batched.py
+----------------
+Many tiny Lasso problems at once, each with its own dictionary:
+``min_a ½‖x_i − D_i a‖² + λ_i ‖a‖₁`` for a stack ``D`` of shape (n, d, m).
+
+Used by the saliency filter (thesis ch.5, eq. 5.6), where every point codes its
+neighbourhood descriptor (d = 5) against the descriptors of its m ≈ 8-12
+surrounding neighbourhoods.  scikit-learn solves one problem per call; a
+million calls are far too slow, so here the problems are stacked: cyclic
+coordinate descent runs on the stacked Gram matrices (one vectorised update per
+coordinate, a Python loop over the m coordinates and the sweeps only), and a
+final active-set step solves the KKT system of every problem exactly on its
+support and sign pattern, so the answer matches LARS/Lasso to machine
+precision whenever the support was found.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import InvalidParameterError
+
+log = logging.getLogger("pcprep")
+
+#: problems solved together (memory: CHUNK·m² floats for the Gram stack)
+CHUNK = 32_768
+
+
+@dataclass(frozen=True)
+class BatchedLasso:
+    """Result of :func:`lasso_batched`.
+
+    Attributes
+    ----------
+    coef : (n, m) float
+        The solutions α_i.
+    residual : (n, d) float
+        x_i − D_i α_i.
+    n_iter : int
+        Largest number of coordinate-descent sweeps any chunk needed.
+    converged : (n,) bool
+        False where the sweep limit was reached before the tolerance and the
+        exact KKT step did not certify the solution.
+    """
+
+    coef: np.ndarray
+    residual: np.ndarray
+    n_iter: int
+    converged: np.ndarray
+
+
+def _soft(z: np.ndarray, t) -> np.ndarray:
+    return np.sign(z) * np.maximum(np.abs(z) - t, 0.0)
+
+
+def _kkt_polish(G, c, lam, coef, kkt_tol):
+    """Exact solve on the support/sign pattern of ``coef``; returns the new
+    coefficients and a mask of the problems whose KKT conditions hold."""
+    n, m = c.shape
+    act = coef != 0.0
+    s = np.sign(coef)
+    eye = np.eye(m)
+    # masked system: G on the active block, identity elsewhere
+    M = np.where(act[:, :, None] & act[:, None, :], G, 0.0) + eye * (~act)[:, :, None]
+    rhs = np.where(act, c - lam[:, None] * s, 0.0)
+    try:
+        a = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # some singular block: fall back per problem
+        a = np.zeros_like(coef)
+        ok = np.zeros(n, dtype=bool)
+        for i in np.flatnonzero(act.any(axis=1)):  # rare, degenerate problems only
+            try:
+                a[i] = np.linalg.solve(M[i], rhs[i])
+                ok[i] = True
+            except np.linalg.LinAlgError:
+                a[i] = coef[i]
+        a[~act.any(axis=1)] = 0.0
+    scale = np.maximum(lam, 1e-300)[:, None]
+    grad = c - np.einsum("njk,nk->nj", G, a)
+    sign_ok = np.where(act, a * s > 0, True).all(axis=1)
+    inact_ok = np.where(act, True, np.abs(grad) <= scale * (1.0 + kkt_tol)).all(axis=1)
+    good = sign_ok & inact_ok & np.isfinite(a).all(axis=1)
+    return np.where(good[:, None], a, coef), good
+
+
+def _solve_chunk(G, c, lam, max_iter, tol):
+    n, m = c.shape
+    diag = np.einsum("njj->nj", G).copy()
+    inv = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
+    coef = np.zeros((n, m))
+    grad = c.copy()  # c − G α, kept up to date
+    live = np.arange(n)
+    sweeps = 0
+    for sweeps in range(1, max_iter + 1):
+        Gl, gl, al = G[live], grad[live], coef[live]
+        laml, invl, dl = lam[live], inv[live], diag[live]
+        change = np.zeros(len(live))
+        for j in range(m):
+            old = al[:, j]
+            new = _soft(gl[:, j] + dl[:, j] * old, laml) * invl[:, j]
+            delta = new - old
+            nz = delta != 0.0
+            if nz.any():
+                al[:, j] = new
+                gl -= Gl[:, :, j] * delta[:, None]
+                change = np.maximum(change, np.abs(delta) * np.sqrt(dl[:, j]))
+        coef[live], grad[live] = al, gl
+        done = change <= tol * np.maximum(1.0, np.abs(c[live]).max(axis=1))
+        if done.all():
+            live = live[:0]
+            break
+        if sweeps % 8 == 0:  # compact: keep only unconverged problems
+            live = live[~done]
+    converged = np.ones(n, dtype=bool)
+    converged[live] = False
+    return coef, converged, sweeps
+
+
+def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
+                  kkt_tol: float = 1e-9) -> BatchedLasso:
+    """Solve a stack of Lasso problems, each with its own dictionary.
+
+    For every i, ``α_i = argmin_a ½‖x_i − D_i a‖² + alpha_i ‖a‖₁``.
+
+    Parameters
+    ----------
+    x : (n, d) float
+        Signals.
+    D : (n, d, m) float
+        One dictionary per signal (atoms are the columns; they are *not*
+        normalised).
+    alpha : float or (n,) float
+        Non-negative ℓ1 weights λ in the ½-scaled objective above.
+    max_iter : int, default=2000
+        Coordinate-descent sweeps at most.
+    tol : float, default=1e-10
+        A problem stops when no coordinate moved more than ``tol`` (scaled by
+        the atom norm and by max|D_iᵀx_i|) in a sweep.
+    kkt_tol : float, default=1e-9
+        Relative slack accepted on |D_jᵀr| ≤ λ for inactive atoms in the final
+        exact step.
+
+    Returns
+    -------
+    BatchedLasso
+
+    Raises
+    ------
+    InvalidParameterError
+        On mismatched shapes, non-finite input or negative ``alpha``.
+
+    Notes
+    -----
+    Objective convention: scikit-learn's ``Lasso(alpha=a, fit_intercept=False)``
+    and ``LassoLars`` minimise ``1/(2·n_samples)‖y − Xw‖² + a‖w‖₁`` with
+    n_samples = d here, so ``alpha = a·d`` gives the same solution.  The thesis
+    writes eq. (3.7)/(5.6) without the ½: ``‖x − Dα‖² + λ‖α‖₁`` is solved here
+    with ``alpha = λ/2``.
+
+    Algorithm: cyclic coordinate descent on the Gram stacks G_i = D_iᵀD_i and
+    c_i = D_iᵀx_i (a loop over coordinates and sweeps, vectorised over the
+    problems; converged problems are dropped from the working set), then one
+    batched solve of ``G_AA α_A = c_A − λ s_A`` on each support A with signs s.
+    Where that exact point satisfies the KKT conditions (signs kept, inactive
+    correlations ≤ λ) it replaces the iterate, which removes the
+    coordinate-descent tolerance from the answer.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> D = rng.normal(size=(100, 5, 8)); x = rng.normal(size=(100, 5))
+    >>> res = lasso_batched(x, D, 0.5)
+    >>> res.coef.shape, bool(res.converged.all())
+    ((100, 8), True)
+    """
+    x = np.asarray(x, dtype=np.float64)
+    D = np.asarray(D, dtype=np.float64)
+    if x.ndim != 2 or D.ndim != 3 or D.shape[:2] != x.shape:
+        raise InvalidParameterError(
+            f"lasso_batched: need x (n, d) and D (n, d, m), got {x.shape} and {D.shape}")
+    n, d, m = D.shape
+    lam = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n,)).copy() \
+        if np.ndim(alpha) in (0, 1) else None
+    if lam is None or lam.shape != (n,):
+        raise InvalidParameterError("lasso_batched: alpha must be a scalar or shape (n,)")
+    if not (np.isfinite(x).all() and np.isfinite(D).all() and np.isfinite(lam).all()):
+        raise InvalidParameterError("lasso_batched: x, D and alpha must be finite")
+    if (lam < 0).any():
+        raise InvalidParameterError("lasso_batched: alpha must be >= 0")
+    coef = np.zeros((n, m))
+    conv = np.ones(n, dtype=bool)
+    n_iter = 0
+    for s in range(0, n, CHUNK):
+        e = min(n, s + CHUNK)
+        Dc = D[s:e]
+        G = np.einsum("ndi,ndj->nij", Dc, Dc)
+        c = np.einsum("ndi,nd->ni", Dc, x[s:e])
+        a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol)
+        a, good = _kkt_polish(G, c, lam[s:e], a, kkt_tol)
+        coef[s:e], conv[s:e] = a, ok | good
+        n_iter = max(n_iter, it)
+    if not conv.all():
+        log.info("lasso_batched: %d of %d problems hit max_iter=%d", int((~conv).sum()), n,
+                 max_iter)
+    residual = x - np.einsum("ndm,nm->nd", D, coef)
+    return BatchedLasso(coef, residual, n_iter, conv)

@@ -1,0 +1,488 @@
+"""
+sparse.py
+---------
+Sparse coding and dictionary learning (thesis ch.3): batched orthogonal
+matching pursuit, batched Lasso by LARS (3.7) and K-SVD (Algorithm 3.3).
+
+Signals are the *rows* of ``X`` (``(m, d)``) and atoms are the rows of the
+dictionary ``D`` (``(n_atoms, d)``, unit norm), so a signal is approximated by
+``codes @ D``.  Codes are returned as ``scipy.sparse.csr_matrix`` of shape
+``(m, n_atoms)``: at a million signals a dense code matrix would take 1.6 GB.
+
+The solvers are vectorised over signals (the many small problems share one
+dictionary), which is what the point-cloud filters need: every point is a
+signal of 7-40 features and there are up to 10^6 of them.  scikit-learn's
+``orthogonal_mp_gram`` and ``sparse_encode(algorithm="lasso_lars")`` loop over
+signals in Python; measured on this machine (d = 7, 200 atoms) they take about
+40 µs (OMP) and 1 ms (LassoLars) per signal, i.e. 40 s and 1000 s at 10^6
+signals, against about 2 s and 10 s for the batched solvers below.  The tests
+check both solvers against scikit-learn on small inputs.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse as sp
+
+from ._validation import InvalidParameterError, check_param, check_seed
+
+log = logging.getLogger("pcprep")
+
+#: signals per chunk in the batched solvers
+CHUNK = 32_768
+#: relative tolerance under which a correlation counts as zero
+_EPS = 1e-12
+
+
+# --------------------------------------------------------------------------- helpers
+def _as_signals(X, func: str, name: str = "X") -> np.ndarray:
+    try:
+        arr = np.array(X, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"{func}: {name} must be numeric") from exc
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise InvalidParameterError(f"{func}: {name} must be a non-empty 2-D array, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise InvalidParameterError(f"{func}: {name} contains NaN or Inf")
+    return np.ascontiguousarray(arr)
+
+
+def _as_dictionary(D, d: int, func: str) -> np.ndarray:
+    D = _as_signals(D, func, "D")
+    if D.shape[1] != d:
+        raise InvalidParameterError(
+            f"{func}: D has {D.shape[1]} columns but the signals have {d}")
+    norm = np.linalg.norm(D, axis=1)
+    if (norm < 1e-12).any():
+        raise InvalidParameterError(f"{func}: D has zero atoms")
+    return D / norm[:, None]
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, shape) -> sp.csr_matrix:
+    keep = vals != 0.0
+    return sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=shape)
+
+
+def code_length(codes, X, D) -> tuple[np.ndarray, np.ndarray]:
+    """Sparsity and residual of every signal, the two MDL code lengths of
+    thesis §6.3.3 / (6.5)-(6.7).
+
+    Parameters
+    ----------
+    codes : (m, n_atoms) sparse or dense
+    X : (m, d) float
+    D : (n_atoms, d) float
+
+    Returns
+    -------
+    nnz : (m,) int
+        ``‖α_j‖₀`` (6.5)-(6.6).
+    residual : (m,) float
+        ``‖x_j − α_j D‖₂`` (6.7).
+    """
+    codes = sp.csr_matrix(codes)
+    codes.eliminate_zeros()
+    nnz = np.diff(codes.indptr).astype(np.int64)
+    X = np.asarray(X, dtype=np.float64)
+    residual = np.linalg.norm(X - codes @ np.asarray(D, dtype=np.float64), axis=1)
+    return nnz, residual
+
+
+# --------------------------------------------------------------------------- OMP
+def _omp_chunk(X, D, L, tol):
+    """Batched OMP on one chunk; returns (support (c, L) int, coef (c, L))."""
+    c, d = X.shape
+    S = D.shape[0]
+    sup = np.zeros((c, L), dtype=np.int64)
+    coef = np.zeros((c, L))
+    live = np.ones(c, dtype=bool)
+    R = X.copy()
+    xnorm2 = np.einsum("ij,ij->i", X, X)
+    if tol is not None:
+        live &= xnorm2 > tol
+    G = D @ D.T
+    XD = X @ D.T  # (c, S) correlations of the signals
+    rows_all = np.arange(c)
+    for t in range(L):
+        rows = rows_all[live]
+        if rows.size == 0:
+            break
+        corr = np.abs(R[rows] @ D.T)
+        if t:
+            np.put_along_axis(corr, sup[rows, :t], -1.0, axis=1)
+        j = np.argmax(corr, axis=1)
+        cmax = corr[np.arange(rows.size), j]
+        scale = np.sqrt(xnorm2[rows]) + 1e-300
+        ok = cmax > _EPS * scale  # residual already orthogonal to every atom
+        live[rows[~ok]] = False
+        rows, j = rows[ok], j[ok]
+        if rows.size == 0:
+            break
+        sup[rows, t] = j
+        s = sup[rows, : t + 1]
+        Gs = G[s[:, :, None], s[:, None, :]] + 1e-12 * np.eye(t + 1)
+        b = np.take_along_axis(XD[rows], s, axis=1)
+        a = np.linalg.solve(Gs, b[:, :, None])[:, :, 0]
+        coef[rows, : t + 1] = a
+        R[rows] = X[rows] - np.einsum("ck,ckd->cd", a, D[s])
+        if tol is not None:
+            done = np.einsum("ij,ij->i", R[rows], R[rows]) <= tol
+            live[rows[done]] = False
+    return sup, coef
+
+
+def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -> sp.csr_matrix:
+    """Orthogonal matching pursuit of many signals at once (problem (3.6)).
+
+    Parameters
+    ----------
+    X : (m, d) float
+        Signals, one per row.
+    D : (n_atoms, d) float
+        Dictionary, one atom per row; rows are normalised to unit length.
+    n_nonzero_coefs : int, optional
+        Maximum number of atoms per signal.  Default: ``max(1, d // 10)`` when
+        ``tol`` is None, else ``min(d, n_atoms)``.
+    tol : float, optional
+        Stop a signal once its squared residual ``‖x − αD‖²`` is ≤ ``tol``
+        (scikit-learn's convention).  With both given, whichever comes first.
+
+    Returns
+    -------
+    codes : (m, n_atoms) scipy.sparse.csr_matrix
+        Coefficients on the (normalised) atoms of ``D``.
+
+    Notes
+    -----
+    Each pursuit step is one vectorised operation over a chunk of signals:
+    correlations with the residual, argmax, then all the small least-squares
+    problems on the supports solved by one batched ``np.linalg.solve`` of the
+    Gram sub-matrices.  Equal to scikit-learn's ``orthogonal_mp_gram`` up to
+    ties (tested).
+    """
+    func = "omp"
+    X = _as_signals(X, func)
+    m, d = X.shape
+    D = _as_dictionary(D, d, func)
+    S = D.shape[0]
+    if tol is not None:
+        tol = check_param(tol, func=func, name="tol", kind=float, low=0.0)
+    if n_nonzero_coefs is None:
+        L = max(1, d // 10) if tol is None else min(d, S)
+    else:
+        L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
+                        low=1, high=min(d, S))
+    rows, cols, vals = [], [], []
+    for s0 in range(0, m, CHUNK):
+        e = min(m, s0 + CHUNK)
+        sup, coef = _omp_chunk(X[s0:e], D, L, tol)
+        rows.append(np.repeat(np.arange(s0, e), L))
+        cols.append(sup.ravel())
+        vals.append(coef.ravel())
+    return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
+
+
+# --------------------------------------------------------------------------- LARS
+def _lars_chunk(X, D, alpha, K, max_steps):
+    """Batched LARS with the Lasso modification (Efron et al. 2004) on one chunk.
+
+    Minimises ½‖x − βD‖² + alpha‖β‖₁ for every row x of X.  The active set of
+    each signal is held in a padded index array ``act`` (c, K) with ``nact``
+    valid entries; padded slots carry an identity block so one batched solve
+    serves signals with active sets of different sizes.
+    """
+    c, d = X.shape
+    S = D.shape[0]
+    G = D @ D.T
+    beta_act = np.zeros((c, K))
+    act = np.zeros((c, K), dtype=np.int64)
+    nact = np.zeros(c, dtype=np.int64)
+    Cor = X @ D.T  # correlations c_j = d_j·(x − βD)
+    j0 = np.argmax(np.abs(Cor), axis=1)
+    lam = np.abs(Cor[np.arange(c), j0])
+    live = lam > alpha
+    act[:, 0] = j0
+    nact[live] = 1
+    slot = np.arange(K)
+    for _ in range(max_steps):
+        rows = np.flatnonzero(live)
+        if rows.size == 0:
+            break
+        a_idx = act[rows]
+        na = nact[rows]
+        valid = slot[None, :] < na[:, None]
+        cor = Cor[rows]
+        lam_r = lam[rows]
+        s_act = np.sign(np.take_along_axis(cor, a_idx, axis=1)) * valid
+        Gs = G[a_idx[:, :, None], a_idx[:, None, :]]
+        vv = valid[:, :, None] & valid[:, None, :]
+        Gs = np.where(vv, Gs, 0.0) + np.where(valid, 1e-12, 1.0)[:, :, None] * np.eye(K)
+        w = np.linalg.solve(Gs, s_act[:, :, None])[:, :, 0] * valid
+        # correlation change per unit step: a = G[:, A] w = D (D_A^T w)
+        u = np.einsum("ck,ckd->cd", w, D[a_idx])
+        a = u @ D.T
+        # joining: |c_j − γ a_j| = λ − γ
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g1 = (lam_r[:, None] - cor) / (1.0 - a)
+            g2 = (lam_r[:, None] + cor) / (1.0 + a)
+        tiny = 1e-12 * np.maximum(lam_r, 1e-300)[:, None]
+        g1 = np.where(np.isfinite(g1) & (g1 > tiny), g1, np.inf)
+        g2 = np.where(np.isfinite(g2) & (g2 > tiny), g2, np.inf)
+        gj = np.minimum(g1, g2)
+        in_act = np.zeros((rows.size, S), dtype=bool)
+        np.put_along_axis(in_act, a_idx, valid, axis=1)
+        gj[in_act] = np.inf
+        full = na >= K
+        gj[full] = np.inf
+        jj = np.argmin(gj, axis=1)
+        g_join = gj[np.arange(rows.size), jj]
+        # dropping: β_k + γ w_k = 0
+        b = beta_act[rows]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gd = -b / w
+        gd = np.where(valid & (w != 0) & np.isfinite(gd) & (gd > tiny), gd, np.inf)
+        kk = np.argmin(gd, axis=1)
+        g_drop = gd[np.arange(rows.size), kk]
+        g_end = lam_r - alpha
+        gamma = np.minimum(np.minimum(g_join, g_drop), g_end)
+        # advance
+        beta_act[rows] = b + gamma[:, None] * w
+        Cor[rows] = cor - gamma[:, None] * a
+        lam[rows] = lam_r - gamma
+        end = gamma >= g_end
+        live[rows[end]] = False
+        drop = ~end & (g_drop <= g_join)
+        join = ~end & ~drop
+        r = rows[join]
+        act[r, nact[r]] = jj[join]
+        beta_act[r, nact[r]] = 0.0
+        nact[r] += 1
+        r, k = rows[drop], kk[drop]
+        if r.size:
+            # move the last active slot into the dropped one
+            last = nact[r] - 1
+            act[r, k] = act[r, last]
+            beta_act[r, k] = beta_act[r, last]
+            beta_act[r, last] = 0.0
+            nact[r] = last
+        # a signal whose active set is full and whose next event is a join
+        # (degenerate dictionary) stops where it is
+        stuck = join & (nact[rows] > K)
+        if stuck.any():
+            live[rows[stuck]] = False
+    else:
+        n_live = int(live.sum())
+        if n_live:
+            log.warning("lasso_lars: %d signal(s) hit max_steps", n_live)
+    valid = slot[None, :] < nact[:, None]
+    return act, np.where(valid, beta_act, 0.0)
+
+
+def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_matrix:
+    """Lasso codes of many signals by LARS (thesis (3.7), Algorithm 3.1 with
+    the Lasso modification).
+
+    Parameters
+    ----------
+    X : (m, d) float
+        Signals, one per row.
+    D : (n_atoms, d) float
+        Dictionary, one atom per row; rows are normalised to unit length.
+    alpha : float
+        Weight of the ℓ1 term in ``½‖x − αD‖₂² + alpha‖α‖₁`` (the SPAMS /
+        scikit-learn ``sparse_encode`` convention; the thesis' (3.7) has no ½,
+        so its λ equals ``2 * alpha``).  ``alpha ≥ max_j |d_j·x|`` gives α = 0.
+    max_steps : int, optional
+        Cap on LARS events (joins and drops) per signal; default ``8 * min(d, n_atoms)``.
+
+    Returns
+    -------
+    codes : (m, n_atoms) scipy.sparse.csr_matrix
+
+    Notes
+    -----
+    All signals follow their own regularisation paths in lock-step: one
+    vectorised LARS event (an atom joins or leaves the active set, or the path
+    reaches ``alpha``) per iteration for every unfinished signal.  The active
+    set never exceeds ``min(d, n_atoms)`` atoms.  Matches scikit-learn's
+    ``Lasso`` (coordinate descent, ``alpha/d`` in its scaling) to solver
+    precision (tested).
+    """
+    func = "lasso_lars"
+    X = _as_signals(X, func)
+    m, d = X.shape
+    D = _as_dictionary(D, d, func)
+    S = D.shape[0]
+    alpha = check_param(alpha, func=func, name="alpha", kind=float, low=0.0, closed="neither")
+    K = min(d, S)
+    if max_steps is None:
+        max_steps = 8 * K
+    max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
+    rows, cols, vals = [], [], []
+    for s0 in range(0, m, CHUNK):
+        e = min(m, s0 + CHUNK)
+        act, beta = _lars_chunk(X[s0:e], D, alpha, K, max_steps)
+        rows.append(np.repeat(np.arange(s0, e), K))
+        cols.append(act.ravel())
+        vals.append(beta.ravel())
+    return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
+
+
+# --------------------------------------------------------------------------- K-SVD
+@dataclass(frozen=True)
+class KSVDResult:
+    """Result of ``ksvd``.
+
+    Attributes
+    ----------
+    dictionary : (n_atoms, d) float
+        Learned atoms, unit-norm rows.
+    codes : (m, n_atoms) scipy.sparse.csr_matrix
+        OMP codes of *all* the signals on the final dictionary.
+    errors : (n_iter,) float
+        Root-mean-square residual of the training signals after each iteration's
+        coding stage.
+    train_idx : (m_train,) int
+        Rows of ``X`` used for training (all rows when m ≤ ``max_train``).
+    """
+
+    dictionary: np.ndarray
+    codes: sp.csr_matrix
+    errors: np.ndarray
+    train_idx: np.ndarray
+
+
+def _update_atoms(Xt, D, sup, coef, rng):
+    """K-SVD dictionary-update stage (Alg. 3.3 lines 5-12) on dense small codes.
+
+    ``sup``/``coef`` (m, L) hold each training signal's support and
+    coefficients; they are updated in place together with D.
+    """
+    m = Xt.shape[0]
+    S = D.shape[0]
+    recon = np.einsum("ml,mld->md", coef, D[sup])
+    E_all = Xt - recon
+    flat = sup.ravel()
+    nz = coef.ravel() != 0
+    order = np.argsort(flat[nz], kind="stable")
+    pos = np.flatnonzero(nz)[order]  # flat positions grouped by atom
+    starts = np.searchsorted(flat[nz][order], np.arange(S + 1))
+    unused = []
+    for j in range(S):  # loop over atoms (Alg. 3.3 line 5)
+        p = pos[starts[j]:starts[j + 1]]
+        if p.size == 0:
+            unused.append(j)
+            continue
+        r, l = np.divmod(p, sup.shape[1])
+        # E_j restricted to ω_j: residual with atom j's contribution put back
+        Ej = E_all[r] + coef[r, l][:, None] * D[j][None, :]
+        # rank-1 SVD via the (d × d) scatter matrix: d_j = top eigenvector
+        ev, evec = np.linalg.eigh(Ej.T @ Ej)
+        dj = evec[:, -1]
+        if dj @ D[j] < 0:
+            dj = -dj
+        new = Ej @ dj
+        D[j] = dj
+        coef[r, l] = new
+        E_all[r] = Ej - new[:, None] * dj[None, :]
+    if unused:
+        # replace unused atoms by the worst-represented training signals
+        err = np.einsum("ij,ij->i", E_all, E_all)
+        worst = np.argsort(-err, kind="stable")[: len(unused)]
+        for j, w in zip(unused, worst):
+            v = Xt[w]
+            nv = np.linalg.norm(v)
+            D[j] = v / nv if nv > 1e-12 else rng.standard_normal(D.shape[1])
+            D[j] /= np.linalg.norm(D[j])
+    return len(unused)
+
+
+def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
+         max_iter: int = 10, max_train: int = 20_000, seed: int | None = None) -> KSVDResult:
+    """K-SVD dictionary learning (Aharon, Elad & Bruckstein 2006; thesis Alg. 3.3).
+
+    Parameters
+    ----------
+    X : (m, d) float
+        Training signals, one per row.
+    n_atoms : int
+        Dictionary size S.
+    n_nonzero_coefs : int, optional
+        Sparsity of the OMP coding stage (``k0`` of Alg. 3.3).  Default
+        ``max(1, d // 10)`` when ``tol`` is None.
+    tol : float, optional
+        Squared-residual target of the OMP coding stage, per signal.
+    max_iter : int, default=10
+        Coding / update iterations.
+    max_train : int, default=20000
+        At most this many signals (a seeded random subsample) train the
+        dictionary; all ``m`` signals are then coded on it.
+    seed : int, optional
+        Seeds the subsample and the initial dictionary.
+
+    Returns
+    -------
+    KSVDResult
+
+    Notes
+    -----
+    Initialisation: ``n_atoms`` distinct training signals chosen at random,
+    normalised (a zero signal is replaced by a random direction; if there are
+    fewer signals than atoms the rest are random unit vectors).  After each
+    update stage, atoms used by no signal are replaced by the currently worst
+    represented training signals.  The SVD of each restricted residual
+    ``E_j^R`` (Alg. 3.3 line 10) is taken through the eigen-decomposition of the
+    ``d × d`` matrix ``E_j^Rᵀ E_j^R`` (d ≤ 40 here), which gives the same
+    ``u1`` and coefficients ``σ1 v1``.
+    Training on a subsample is a deviation from the thesis, for speed at
+    10^6 points; the dictionary of 200 atoms in ≤ 40 dimensions is learned
+    well from 2·10^4 signals.
+    """
+    func = "ksvd"
+    X = _as_signals(X, func)
+    m, d = X.shape
+    n_atoms = check_param(n_atoms, func=func, name="n_atoms", kind=int, low=1)
+    max_iter = check_param(max_iter, func=func, name="max_iter", kind=int, low=1)
+    max_train = check_param(max_train, func=func, name="max_train", kind=int, low=1)
+    seed = check_seed(seed, func=func)
+    if tol is not None:
+        tol = check_param(tol, func=func, name="tol", kind=float, low=0.0)
+    if n_nonzero_coefs is None:
+        L = max(1, d // 10) if tol is None else min(d, n_atoms)
+    else:
+        L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
+                        low=1, high=min(d, n_atoms))
+    rng = np.random.default_rng(seed)
+    train_idx = np.arange(m) if m <= max_train else np.sort(
+        rng.choice(m, size=max_train, replace=False))
+    Xt = X[train_idx]
+    mt = len(Xt)
+    # initial dictionary: distinct random training signals, normalised
+    pick = rng.permutation(mt)[: min(n_atoms, mt)]
+    D = np.array(Xt[pick], dtype=np.float64)
+    if len(D) < n_atoms:
+        D = np.vstack([D, rng.standard_normal((n_atoms - len(D), d))])
+    nrm = np.linalg.norm(D, axis=1)
+    zero = nrm < 1e-12
+    if zero.any():
+        D[zero] = rng.standard_normal((int(zero.sum()), d))
+        nrm[zero] = np.linalg.norm(D[zero], axis=1)
+    D /= nrm[:, None]
+    errors = []
+    for it in range(max_iter):
+        sup, coef = [], []
+        for s0 in range(0, mt, CHUNK):
+            a, b = _omp_chunk(Xt[s0:s0 + CHUNK], D, L, tol)
+            sup.append(a)
+            coef.append(b)
+        sup, coef = np.concatenate(sup), np.concatenate(coef)
+        resid = Xt - np.einsum("ml,mld->md", coef, D[sup])
+        errors.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", resid, resid)))))
+        n_unused = _update_atoms(Xt, D, sup, coef, rng)
+        log.info("ksvd: iteration %d, rms residual %.4g, %d unused atom(s) replaced",
+                 it + 1, errors[-1], n_unused)
+    codes = omp(X, D, n_nonzero_coefs=L, tol=tol)
+    return KSVDResult(dictionary=D, codes=codes, errors=np.asarray(errors), train_idx=train_idx)

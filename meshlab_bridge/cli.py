@@ -1,0 +1,204 @@
+"""
+cli.py
+------
+The ``pcprep`` command line, generated from the filter registry.
+
+    pcprep info FILE
+    pcprep filters
+    pcprep denoise|features|holes|saliency IN OUT [--param value ...]
+    pcprep simplify IN OUT (--ratio R | --count N) [--param value ...]
+    pcprep bench denoise|simplify|features|saliency [--quick] [--speed]
+    pcprep report [--quick]
+
+Errors print one line on stderr and exit with status 1 (2 for usage errors);
+no output file is written unless the whole run succeeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from importlib import import_module
+
+import numpy as np
+
+from filters._validation import InvalidParameterError, PointCloudError
+
+from . import registry
+from .convert import MissingAttributeError, load_cloud, save_cloud
+
+log = logging.getLogger("pcprep")
+
+BENCHES = ("denoise", "simplify", "features", "saliency")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2, like argparse but no usage dump
+        self.exit(2, f"pcprep: error: {message}\n")
+
+
+def _bool(text: str) -> bool:
+    low = text.strip().lower()
+    if low in ("1", "true", "yes", "on"):
+        return True
+    if low in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true/false, got {text!r}")
+
+
+def _add_filter_command(sub, spec) -> None:
+    first = spec.description.split(". ")[0].rstrip(".") + "."
+    p = sub.add_parser(spec.command, help=spec.label, description=f"{spec.label}. {first}")
+    p.add_argument("input", help="input file (any format pymeshlab reads: PLY, OBJ, OFF, XYZ, …)")
+    p.add_argument("output", help="output file (PLY keeps normals, colours and quality)")
+    for prm in spec.params:
+        kind = _bool if prm.kind is bool else prm.kind
+        unit = f" [{registry.UNITS[prm.unit]}]" if prm.unit else ""
+        rng = f" range {prm.range_text()}." if prm.range_text() else ""
+        default = "auto" if prm.default is None else prm.default
+        p.add_argument(
+            f"--{prm.name.replace('_', '-')}", dest=prm.name, type=kind, default=None,
+            choices=prm.choices or None, metavar=prm.name.upper() if not prm.choices else None,
+            help=f"{prm.help}{unit}.{rng} Default: {default}.",
+        )
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(_spec=spec)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="pcprep", description=(
+        "Sparse-representation point-cloud pre-processing (Leal Narváez 2020): denoising, "
+        "saliency, simplification, sharp features and hole boundaries, benchmarked against "
+        "MeshLab and CGAL."))
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    info = sub.add_parser("info", help="point count, spacing h, bounding box, attributes")
+    info.add_argument("input")
+    sub.add_parser("filters", help="list the filters and their parameters")
+    for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
+        _add_filter_command(sub, spec)
+    bench = sub.add_parser("bench", help="run one comparison harness; writes reports/")
+    bench.add_argument("family", choices=BENCHES)
+    bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
+    bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
+    bench.add_argument("--out", default="reports", help="output folder (default: reports)")
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--quiet", action="store_true")
+    rep = sub.add_parser("report", help="run every harness and write reports/index.md + .html")
+    rep.add_argument("--quick", action="store_true",
+                     help="generated and pymeshlab-shipped data only; a few minutes")
+    rep.add_argument("--out", default="reports", help="output folder (default: reports)")
+    rep.add_argument("--seed", type=int, default=0)
+    rep.add_argument("--quiet", action="store_true")
+    return parser
+
+
+def _cmd_info(path: str) -> None:
+    from filters.neighbors import average_spacing
+
+    cloud = load_cloud(path)
+    pts = cloud.points
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    attrs = ["positions"]
+    if cloud.normals is not None:
+        attrs.append("normals")
+    if cloud.colors is not None:
+        attrs.append("colours")
+    if cloud.quality is not None:
+        attrs.append("quality")
+    if cloud.faces is not None:
+        attrs.append(f"faces ({len(cloud.faces)})")
+    finite = np.isfinite(pts).all(axis=1)
+    lines = [f"file: {path}", f"points: {len(pts)}"]
+    if not finite.all():
+        lines.append(f"non-finite points: {int((~finite).sum())}")
+    try:
+        h = average_spacing(pts[finite])
+        lines.append(f"average spacing h: {h:.6g}")
+    except PointCloudError as exc:
+        lines.append(f"average spacing h: n/a ({exc})")
+    lines.append(f"bounding box min: {' '.join(f'{v:.6g}' for v in lo)}")
+    lines.append(f"bounding box max: {' '.join(f'{v:.6g}' for v in hi)}")
+    lines.append(f"diagonal: {float(np.linalg.norm(hi - lo)):.6g}")
+    lines.append(f"attributes: {', '.join(attrs)}")
+    sys.stdout.write("\n".join(lines) + "\n")
+
+
+def _cmd_filters() -> None:
+    from .apply import filter_parameter_text
+
+    out = []
+    for name in sorted(registry.load_all()):
+        spec = registry.FILTERS[name]
+        out.append(f"pcprep {spec.command}  ->  {name}")
+        out.append(filter_parameter_text(name))
+        out.append("")
+    sys.stdout.write("\n".join(out))
+
+
+def _cmd_filter(args) -> None:
+    from .apply import result_cloud, run_on_cloud
+
+    spec = args._spec
+    params = {p.name: getattr(args, p.name) for p in spec.params
+              if getattr(args, p.name) is not None}
+    spec.resolve(params)  # parameter errors before reading the file
+    cloud = load_cloud(args.input)
+    log.info("%s: %d points from %s", spec.command, len(cloud), args.input)
+    result = run_on_cloud(spec, cloud, params)
+    out = result_cloud(spec, cloud, result)
+    if spec.kind in ("selection", "scalar"):
+        require = ("quality",)
+    elif spec.kind == "coord":
+        require = ("normal",)
+    else:
+        require = ()
+    save_cloud(out, args.output, require=require)
+    log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
+
+
+def _cmd_bench(args) -> None:
+    mod = import_module(f"baselines.bench_{args.family}")
+    fn = mod.run_speed if args.speed else mod.run
+    fn(quick=args.quick, seed=args.seed, out_dir=args.out)
+
+
+def _cmd_report(args) -> None:
+    from baselines import report
+
+    report.build(quick=args.quick, seed=args.seed, out_dir=args.out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    logging.basicConfig(format="pcprep: %(message)s", stream=sys.stderr,
+                        level=logging.WARNING if getattr(args, "quiet", False) else logging.INFO)
+    try:
+        if args.command == "info":
+            _cmd_info(args.input)
+        elif args.command == "filters":
+            _cmd_filters()
+        elif args.command == "bench":
+            _cmd_bench(args)
+        elif args.command == "report":
+            _cmd_report(args)
+        else:
+            _cmd_filter(args)
+    except (PointCloudError, InvalidParameterError, MissingAttributeError) as exc:
+        sys.stderr.write(f"pcprep: error: {exc}\n")
+        return 1
+    except MemoryError:
+        sys.stderr.write("pcprep: error: out of memory\n")
+        return 1
+    except KeyboardInterrupt:
+        sys.stderr.write("pcprep: interrupted\n")
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

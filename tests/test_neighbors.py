@@ -1,0 +1,95 @@
+import numpy as np
+import pytest
+
+from filters._validation import PointCloudError
+from filters.neighbors import (
+    average_spacing,
+    knn,
+    orient_normals_mst,
+    orient_normals_toward,
+    pca_normals,
+    weighted_pca,
+)
+from tests.conftest import random_rotation, sphere_points
+
+
+def test_average_spacing_of_a_square_grid_is_known():
+    # unit grid: the 6 nearest of an interior point are 4 at distance 1 and 2 at sqrt(2)
+    g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0)), -1).reshape(-1, 2)
+    pts = np.c_[g, np.zeros(len(g))]
+    interior = (pts[:, 0] > 0) & (pts[:, 0] < 39) & (pts[:, 1] > 0) & (pts[:, 1] < 39)
+    d, _ = knn(pts, 6, include_self=False)
+    assert np.allclose(d[interior].mean(axis=1), (4 + 2 * np.sqrt(2)) / 6)
+    h = average_spacing(pts)
+    assert abs(h - (4 + 2 * np.sqrt(2)) / 6) < 0.02  # borders change it slightly
+
+
+def test_average_spacing_scales_linearly():
+    p = sphere_points(3000, seed=1)
+    assert np.isclose(average_spacing(1000.0 * p), 1000.0 * average_spacing(p))
+
+
+def test_average_spacing_rejects_duplicates_and_tiny_clouds():
+    with pytest.raises(PointCloudError, match="coincides"):
+        average_spacing(np.zeros((50, 3)))
+    with pytest.raises(PointCloudError, match="at least 7"):
+        average_spacing(np.random.default_rng(0).normal(size=(5, 3)))
+
+
+def test_weighted_pca_matches_numpy_per_neighbourhood(rng):
+    pts = rng.normal(size=(500, 3)) * [3.0, 1.0, 0.2]
+    _, idx = knn(pts, 12)
+    w = rng.random(idx.shape)
+    res = weighted_pca(pts, idx, w)
+    for i in (0, 17, 311):
+        nb = pts[idx[i]]
+        wi = w[i] / w[i].sum()
+        mu = wi @ nb
+        cov = (wi[:, None] * (nb - mu)).T @ (nb - mu)
+        lam, vec = np.linalg.eigh(cov)
+        assert np.allclose(res.eigenvalues[i], lam)
+        assert np.allclose(res.centroid[i], mu)
+        assert abs(abs(res.normals[i] @ vec[:, 0]) - 1) < 1e-9
+
+
+def test_plane_features_have_known_values(rng):
+    pts = np.c_[rng.random((4000, 2)), np.zeros(4000)]
+    _, idx = knn(pts, 16)
+    res = weighted_pca(pts, idx)
+    assert np.allclose(np.abs(res.normals[:, 2]), 1.0)
+    assert np.allclose(res.surface_variation, 0.0, atol=1e-12)
+    assert np.allclose(res.sphericity, 0.0, atol=1e-12)
+
+
+def test_mst_orientation_is_consistent_and_outward_on_a_sphere():
+    p = sphere_points(8000, seed=2)
+    n = pca_normals(p, 12, orient=False)
+    # scramble signs, then re-orient
+    flip = np.random.default_rng(3).random(len(p)) < 0.5
+    n[flip] *= -1
+    out = orient_normals_mst(p, n, k=10)
+    assert (np.einsum("ij,ij->i", out, p) > 0).all()
+
+
+def test_mst_orientation_handles_separate_components():
+    a = sphere_points(3000, seed=4)
+    b = sphere_points(3000, seed=5) + [10.0, 0, 0]
+    pts = np.r_[a, b]
+    n = pca_normals(pts, 12, orient=True)
+    centre = np.r_[np.zeros((3000, 3)), np.tile([10.0, 0, 0], (3000, 1))]
+    assert (np.einsum("ij,ij->i", n, pts - centre) > 0).all()
+
+
+def test_orientation_toward_viewpoint():
+    p = sphere_points(1000, seed=6)
+    n = -p.copy()
+    out = orient_normals_toward(p, n, [0, 0, 0])
+    assert (np.einsum("ij,ij->i", out, -p) > 0.99).all()
+
+
+def test_pca_normals_rotate_with_the_cloud():
+    p = sphere_points(4000, seed=7)
+    r = random_rotation(8)
+    n1 = pca_normals(p, 12, orient=False)
+    n2 = pca_normals(p @ r.T, 12, orient=False)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", n1 @ r.T, n2)), 1.0, atol=1e-9)
