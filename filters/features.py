@@ -124,17 +124,20 @@ def multiscale_features(points: np.ndarray, ks: np.ndarray, *, kind: str,
     for s in range(0, n, _CHUNK):
         e = min(n, s + _CHUNK)
         dist, idx = knn(points, k_max, tree=tree, query=points[s:e])
-        x = (points[idx] - points[s:e, None, :]) / h           # (c, k, 3) in h
-        xx = x[:, :, iu[0]] * x[:, :, iu[1]]                   # (c, k, 6)
-        s1 = np.cumsum(np.add.reduceat(x, starts, axis=1), axis=1)    # (c, S, 3)
-        s2 = np.cumsum(np.add.reduceat(xx, starts, axis=1), axis=1)   # (c, S, 6)
-        mean = s1 / kf[None, :, None]
-        m2 = s2 / kf[None, :, None] - mean[..., iu[0]] * mean[..., iu[1]]
-        m2 *= (kf / np.maximum(kf - 1.0, 1.0))[None, :, None]   # 1/(k−1), (7.1)
-        cov = np.empty(m2.shape[:2] + (3, 3))  # noqa: NPY-empty -- all 9 entries set
-        for c_, (i, j) in enumerate(zip(*iu)):
-            cov[..., i, j] = m2[..., c_]
-            cov[..., j, i] = m2[..., c_]
+        x = points[idx]                                         # (c, k, 3)
+        x -= points[s:e, None, :]
+        xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
+        del x
+        s1 = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2)   # (3, c, S)
+        mean = s1 / (kf * h)                                    # in units of h
+        cov = np.empty((e - s, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
+        corr = kf / np.maximum(kf - 1.0, 1.0)                   # 1/(k−1) of (7.1)
+        for i, j in zip(*iu):
+            s2 = np.cumsum(np.add.reduceat(xt[i] * xt[j], starts, axis=1), axis=1)
+            cij = (s2 / (kf * h * h) - mean[i] * mean[j]) * corr
+            cov[..., i, j] = cij
+            cov[..., j, i] = cij
+        mean = np.moveaxis(mean, 0, -1)                         # (c, S, 3)
         lam, nrm = sym3_eig(cov)                                # (c, S, 3)
         l0, l1, l2 = lam[..., 0], lam[..., 1], lam[..., 2]
         l2s = np.maximum(l2, 1e-300)

@@ -83,40 +83,53 @@ def _kkt_polish(G, c, lam, coef, kkt_tol):
     grad = c - np.einsum("njk,nk->nj", G, a)
     sign_ok = np.where(act, a * s > 0, True).all(axis=1)
     inact_ok = np.where(act, True, np.abs(grad) <= scale * (1.0 + kkt_tol)).all(axis=1)
-    good = sign_ok & inact_ok & np.isfinite(a).all(axis=1)
+    # stationarity on the support (fails where the block was singular)
+    cmax = np.maximum(np.abs(c).max(axis=1, initial=0.0), 1.0)[:, None]
+    act_ok = np.where(act, np.abs(grad - lam[:, None] * s) <= kkt_tol * cmax, True).all(axis=1)
+    good = sign_ok & inact_ok & act_ok & np.isfinite(a).all(axis=1)
     return np.where(good[:, None], a, coef), good
 
 
-def _solve_chunk(G, c, lam, max_iter, tol):
+def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol, check_every=4):
     n, m = c.shape
     diag = np.einsum("njj->nj", G).copy()
     inv = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
     coef = np.zeros((n, m))
-    grad = c.copy()  # c − G α, kept up to date
+    converged = np.zeros(n, dtype=bool)
+    # working set (compacted as problems finish)
     live = np.arange(n)
+    Gl, cl, gl, al = G, c, c.copy(), coef.copy()  # gl = c − G α, kept up to date
+    laml, invl, dl, sdl = lam, inv, diag, np.sqrt(diag)
+    stop = tol * np.maximum(1.0, np.abs(c).max(axis=1))
     sweeps = 0
     for sweeps in range(1, max_iter + 1):
-        Gl, gl, al = G[live], grad[live], coef[live]
-        laml, invl, dl = lam[live], inv[live], diag[live]
         change = np.zeros(len(live))
         for j in range(m):
-            old = al[:, j]
+            old = al[:, j].copy()
             new = _soft(gl[:, j] + dl[:, j] * old, laml) * invl[:, j]
             delta = new - old
-            nz = delta != 0.0
-            if nz.any():
-                al[:, j] = new
-                gl -= Gl[:, :, j] * delta[:, None]
-                change = np.maximum(change, np.abs(delta) * np.sqrt(dl[:, j]))
-        coef[live], grad[live] = al, gl
-        done = change <= tol * np.maximum(1.0, np.abs(c[live]).max(axis=1))
-        if done.all():
-            live = live[:0]
-            break
-        if sweeps % 8 == 0:  # compact: keep only unconverged problems
-            live = live[~done]
-    converged = np.ones(n, dtype=bool)
-    converged[live] = False
+            al[:, j] = new
+            gl -= Gl[:, :, j] * delta[:, None]
+            np.maximum(change, np.abs(delta) * sdl[:, j], out=change)
+        done = change <= stop
+        if sweeps % check_every == 0 or sweeps == max_iter:
+            # exact solve on the current support; certified problems are finished
+            exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol)
+            al = np.where(good[:, None], exact, al)
+            done |= good
+        if done.any():
+            coef[live[done]] = al[done]
+            converged[live[done]] = True
+            keep = ~done
+            live = live[keep]
+            if len(live) == 0:
+                break
+            Gl, cl, gl, al = Gl[keep], cl[keep], gl[keep], al[keep]
+            laml, invl, dl, sdl, stop = laml[keep], invl[keep], dl[keep], sdl[keep], stop[keep]
+    if len(live):
+        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol)
+        coef[live] = exact
+        converged[live[good]] = True
     return coef, converged, sweeps
 
 
@@ -199,9 +212,8 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
         Dc = D[s:e]
         G = np.einsum("ndi,ndj->nij", Dc, Dc)
         c = np.einsum("ndi,nd->ni", Dc, x[s:e])
-        a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol)
-        a, good = _kkt_polish(G, c, lam[s:e], a, kkt_tol)
-        coef[s:e], conv[s:e] = a, ok | good
+        a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol, kkt_tol)
+        coef[s:e], conv[s:e] = a, ok
         n_iter = max(n_iter, it)
     if not conv.all():
         log.info("lasso_batched: %d of %d problems hit max_iter=%d", int((~conv).sum()), n,

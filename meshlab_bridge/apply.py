@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from filters._validation import PointCloudError
+from filters._validation import PointCloudError, as_points
 
 from . import registry
 from .convert import Cloud, MissingAttributeError, cloud_to_mesh, meshset_to_cloud
@@ -63,6 +63,7 @@ def run_on_cloud(spec, cloud: Cloud, params: dict):
         raise MissingAttributeError(f"{spec.name} requires per-vertex normals; the layer has none")
     if len(cloud) == 0:
         raise PointCloudError(f"{spec.name}: the layer is empty (0 vertices)")
+    as_points(cloud.points, func=spec.name)  # NaN/Inf rows named before any work
     if spec.uses_normals:
         return spec.func(cloud.points, normals=cloud.normals, **resolved)
     return spec.func(cloud.points, **resolved)
@@ -134,6 +135,7 @@ def apply_filter(ms, name: str, **params) -> dict:
         ms.set_current_mesh(old_id)
         ms.delete_current_mesh()
         ms.set_current_mesh(new_id)
+        ms.current_mesh().set_label(label)  # MeshLab suffixed it while both existed
         outputs["mesh_id"] = new_id
         if spec.mask_field:
             outputs["selected"] = int(np.count_nonzero(getattr(result, spec.mask_field)))

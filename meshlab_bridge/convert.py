@@ -10,6 +10,7 @@ scalars.  pymeshlab stores doubles, so float64 arrays round-trip bit-exactly.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -131,6 +132,8 @@ def load_cloud(path: str) -> Cloud:
 
     if not os.path.isfile(path):
         raise PointCloudError(f"cannot read {path!r}: no such file")
+    if os.path.splitext(path)[1].lower() == ".xyz":
+        return _load_xyz(path)
     ms = pymeshlab.MeshSet()
     try:
         ms.load_new_mesh(str(path))
@@ -161,6 +164,9 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = ()) -> Non
     if not os.path.isdir(folder):
         raise PointCloudError(f"cannot write {path!r}: folder {folder!r} does not exist")
     ext = os.path.splitext(path)[1]
+    if ext.lower() == ".xyz":
+        _save_xyz(cloud, path, folder, require)
+        return
     if not ext:
         raise PointCloudError(f"cannot write {path!r}: the file name needs an extension (.ply, .obj, …)")
     ms = pymeshlab.MeshSet()
@@ -204,3 +210,51 @@ def _save_current(ms, path: str, cloud: Cloud) -> set:
             if not bad:
                 raise
             refused.update(bad)
+
+
+# pymeshlab's XYZ reader silently skips rows it cannot parse (a NaN row vanishes,
+# shifting every later index) and its writer keeps only 6 decimals, so pcprep
+# reads and writes this one text format itself: full precision, every row kept.
+
+def _load_xyz(path: str) -> Cloud:
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            data = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
+    except (ValueError, OSError) as exc:
+        raise PointCloudError(f"cannot read {path!r}: {str(exc).splitlines()[0]}") from exc
+    if data.size == 0:
+        raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
+    if data.shape[1] not in (3, 6):
+        raise PointCloudError(
+            f"cannot read {path!r}: expected 3 (x y z) or 6 (x y z nx ny nz) columns, "
+            f"got {data.shape[1]}"
+        )
+    normals = data[:, 3:6].copy() if data.shape[1] == 6 else None
+    if normals is not None and (np.linalg.norm(normals, axis=1) < 1e-12).any():
+        normals = None
+    return Cloud(np.ascontiguousarray(data[:, :3]), normals, label=os.path.basename(path))
+
+
+def _save_xyz(cloud: Cloud, path: str, folder: str, require: tuple[str, ...]) -> None:
+    import os
+    import tempfile
+
+    missing = [r for r in require if r in ("quality", "color")]
+    if missing:
+        raise PointCloudError(
+            f"cannot write {path!r}: the .xyz format cannot store per-vertex "
+            f"{' and '.join(missing)}; use .ply"
+        )
+    cols = cloud.points if cloud.normals is None else np.c_[cloud.points, cloud.normals]
+    fd, tmp = tempfile.mkstemp(prefix=".pcprep-", suffix=".xyz", dir=folder)
+    os.close(fd)
+    try:
+        np.savetxt(tmp, cols, fmt="%.17g")
+        os.replace(tmp, path)
+    except OSError as exc:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise PointCloudError(f"cannot write {path!r}: {exc}") from exc

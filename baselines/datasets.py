@@ -1,0 +1,659 @@
+"""
+datasets.py
+-----------
+Point clouds with ground truth for tests and benchmarks: analytic CAD solids and
+smooth surfaces sampled with exact normals and sharp-edge / rim labels, the noise
+models of thesis §4.5, hole cutting, and loaders for triangle meshes (pymeshlab's
+bundled samples and the optional shared model folder).
+
+Nothing here needs ``/work/shared`` at run time: the shared loader returns
+``None`` (or raises, on request) when the folder is absent.
+
+Conventions
+-----------
+* Every shape is sampled by rejection from parametric patches whose area element is
+  known, so ``uniform=True`` gives exactly ``n`` i.i.d. points uniform by area.
+* ``uniform=False`` multiplies the density by ``1 + 4 s`` where ``s`` in [0, 1] is
+  the normalised coordinate along the shape's first canonical axis (x): the
+  density varies linearly and smoothly 1:5 from the ``-x`` end to the ``+x`` end
+  (the thesis' "irregular sampling", §4.5.3.1).
+* The "dihedral angle" of an edge is the angle between the outward normals of the
+  two faces that meet there (0° = flat, 90° = cube edge).  A point is ``sharp``
+  when its distance to an edge whose angle exceeds ``sharp_angle_deg`` (default
+  30°) is at most ``sharp_width`` (default 1) times h; distances are computed to
+  the analytic edges (segments, circles, finely sampled polylines for the curved
+  creases of "fandisk").
+* ``rim`` marks points within ``rim_width`` (default 1.5) h of a surface boundary
+  (open shapes, cut holes); closed shapes get an all-False ``rim``.
+* h is :func:`filters.neighbors.average_spacing` of the returned points.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pathlib
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from filters._validation import (
+    InvalidParameterError,
+    PointCloudError,
+    as_normals,
+    as_points,
+    check_choice,
+    check_param,
+    check_seed,
+)
+from filters.neighbors import average_spacing
+
+log = logging.getLogger("pcprep")
+
+SHAPES = ("cube", "octahedron", "block", "star", "fandisk", "sphere", "plane",
+          "bumpy_plane", "disc")
+NOISE_KINDS = ("normal", "random", "impulsive")
+#: points per chunk in point-to-edge distance computations
+_CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class Sample:
+    """A point cloud with ground truth.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Positions.
+    normals : (n, 3) float
+        Exact unit outward normals (interpolated for mesh surface samples).
+    sharp : (n,) bool or None
+        Point within ``sharp_width`` h of an edge whose dihedral angle exceeds the
+        threshold (None when unknown).
+    rim : (n,) bool or None
+        Point near a surface boundary (open border or cut hole); None when unknown.
+    h : float
+        Average spacing (mean distance to the 6 nearest neighbours).
+    name : str
+        Shape or model name.
+    faces : (m, 3) int or None
+        Triangles when the sample is a mesh's vertex set.
+    extra : dict
+        Shape-specific ground truth, e.g. ``"edge_distance"`` (n,) distance to the
+        nearest sharp edge, ``"salient"`` / ``"saliency"`` for "bumpy_plane",
+        ``"density"`` for non-uniform sampling, ``"rotation"``/``"translation"``,
+        ``"keep_idx"`` after :func:`cut_holes`.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    sharp: np.ndarray | None
+    rim: np.ndarray | None
+    h: float
+    name: str
+    faces: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+# ---------------------------------------------------------------------------
+# parametric patches: each draws candidates uniformly over its parameter box and
+# returns an acceptance probability (0/1 for trimmed regions, area-element ratio
+# for height fields), so that accepted points are uniform by area.
+
+@dataclass(frozen=True)
+class _Patch:
+    area: float  # surface measure of the parameter box (times max area element)
+    draw: Callable  # (m, rng) -> (points, normals, accept in [0, 1])
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _rect(origin, u, v, normal, keep=None) -> _Patch:
+    """Parallelogram origin + s u + t v (s, t in [0, 1]), optionally trimmed by
+    ``keep(points) -> bool``."""
+    o, u, v = (np.asarray(a, dtype=np.float64) for a in (origin, u, v))
+    nrm = _unit(normal)
+
+    def draw(m, rng):
+        st = rng.random((m, 2))
+        p = o + st[:, :1] * u + st[:, 1:] * v
+        acc = np.ones(m) if keep is None else keep(p).astype(np.float64)
+        return p, np.broadcast_to(nrm, (m, 3)).copy(), acc
+
+    return _Patch(float(np.linalg.norm(np.cross(u, v))), draw)
+
+
+def _tri(a, b, c, normal) -> _Patch:
+    """Triangle, sampled by folding the unit square (no rejection)."""
+    a, b, c = (np.asarray(x, dtype=np.float64) for x in (a, b, c))
+    nrm = _unit(normal)
+
+    def draw(m, rng):
+        st = rng.random((m, 2))
+        flip = st.sum(axis=1) > 1.0
+        st[flip] = 1.0 - st[flip]
+        p = a + st[:, :1] * (b - a) + st[:, 1:] * (c - a)
+        return p, np.broadcast_to(nrm, (m, 3)).copy(), np.ones(m)
+
+    return _Patch(0.5 * float(np.linalg.norm(np.cross(b - a, c - a))), draw)
+
+
+def _cylinder(center, e1, e2, axis, radius, theta, zrange, inward=False, keep=None):
+    """Cylinder patch center + R (cos t e1 + sin t e2) + z axis, t in ``theta``,
+    z in ``zrange``; the normal is radial (toward the axis when ``inward``)."""
+    c, e1, e2, ax = (np.asarray(x, dtype=np.float64) for x in (center, e1, e2, axis))
+    t0, t1 = theta
+    z0, z1 = zrange
+
+    def draw(m, rng):
+        t = t0 + (t1 - t0) * rng.random(m)
+        z = z0 + (z1 - z0) * rng.random(m)
+        radial = np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2
+        p = c + radius * radial + z[:, None] * ax
+        nrm = -radial if inward else radial
+        acc = np.ones(m) if keep is None else keep(p).astype(np.float64)
+        return p, nrm, acc
+
+    return _Patch(radius * (t1 - t0) * (z1 - z0), draw)
+
+
+def _sphere(radius) -> _Patch:
+    """Sphere by Archimedes' projection: uniform z and azimuth."""
+
+    def draw(m, rng):
+        z = 2.0 * rng.random(m) - 1.0
+        phi = 2.0 * np.pi * rng.random(m)
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        nrm = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+        return radius * nrm, nrm, np.ones(m)
+
+    return _Patch(4.0 * np.pi * radius**2, draw)
+
+
+def _sample_patches(patches, n, rng, density=None, density_max=1.0):
+    """Exactly ``n`` i.i.d. points from the union of ``patches``, uniform by area
+    (times ``density(points)/density_max`` when given)."""
+    area = np.array([p.area for p in patches])
+    prob = area / area.sum()
+    chunks_p, chunks_n = [], []
+    got, rate = 0, 0.5
+    while got < n:
+        m = int(min(4_000_000, max(2048, 1.3 * (n - got) / max(rate, 0.02))))
+        counts = rng.multinomial(m, prob)
+        ps, ns, acc = [], [], []
+        for patch, c in zip(patches, counts):
+            if c:
+                p, q, a = patch.draw(int(c), rng)
+                ps.append(p)
+                ns.append(q)
+                acc.append(a)
+        p, q, a = np.concatenate(ps), np.concatenate(ns), np.concatenate(acc)
+        if density is not None:
+            a = a * (density(p) / density_max)
+        ok = rng.random(m) < a
+        perm = rng.permutation(int(ok.sum()))
+        chunks_p.append(p[ok][perm])
+        chunks_n.append(q[ok][perm])
+        got += int(ok.sum())
+        rate = max(ok.mean(), 1e-3)
+    return np.concatenate(chunks_p)[:n], np.concatenate(chunks_n)[:n]
+
+
+# ---------------------------------------------------------------------------
+# analytic edges
+
+@dataclass
+class _Edges:
+    """Sharp-edge geometry: segments (a, b, angle) and full circles (c, axis, R,
+    angle), angles in degrees between the adjacent outward normals."""
+
+    seg_a: list = field(default_factory=list)
+    seg_b: list = field(default_factory=list)
+    seg_ang: list = field(default_factory=list)
+    circles: list = field(default_factory=list)
+
+    def segment(self, a, b, angle):
+        self.seg_a.append(np.asarray(a, dtype=np.float64))
+        self.seg_b.append(np.asarray(b, dtype=np.float64))
+        self.seg_ang.append(float(angle))
+
+    def polyline(self, pts, angles):
+        pts = np.asarray(pts, dtype=np.float64)
+        angles = np.broadcast_to(np.asarray(angles, dtype=np.float64), (len(pts) - 1,))
+        for i in range(len(pts) - 1):
+            self.segment(pts[i], pts[i + 1], angles[i])
+
+    def circle(self, center, axis, radius, angle):
+        self.circles.append((np.asarray(center, float), _unit(axis), float(radius),
+                             float(angle)))
+
+    def distance(self, points, min_angle_deg):
+        """(n,) distance from each point to the nearest edge sharper than
+        ``min_angle_deg`` (inf when there is none)."""
+        out = np.full(len(points), np.inf)
+        if self.seg_a:
+            ang = np.array(self.seg_ang)
+            sel = ang > min_angle_deg
+            a = np.array(self.seg_a)[sel]
+            b = np.array(self.seg_b)[sel]
+            if len(a):
+                ab = b - a
+                ll = np.maximum((ab * ab).sum(axis=1), 1e-300)
+                for s in range(0, len(points), _CHUNK):
+                    p = points[s:s + _CHUNK]
+                    ap = p[:, None, :] - a[None]
+                    t = np.clip(np.einsum("cmd,md->cm", ap, ab) / ll, 0.0, 1.0)
+                    d = ap - t[..., None] * ab[None]
+                    out[s:s + _CHUNK] = np.sqrt((d * d).sum(axis=2).min(axis=1))
+        for c, ax, r, ang in self.circles:
+            if ang > min_angle_deg:
+                q = points - c
+                z = q @ ax
+                rad = np.linalg.norm(q - z[:, None] * ax, axis=1)
+                out = np.minimum(out, np.hypot(rad - r, z))
+        return out
+
+
+# ---------------------------------------------------------------------------
+# the shapes.  Each builder returns (patches, edges, boundary_distance or None,
+# extra_fn or None); boundary_distance(points) gives the distance to the open
+# border of open surfaces.
+
+def _build_cube():
+    a = 0.5
+    patches = []
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        for s in (-1.0, 1.0):
+            o = np.zeros(3)
+            o[i], o[j], o[k] = s * a, -a, -a
+            u = np.zeros(3)
+            u[j] = 2 * a
+            v = np.zeros(3)
+            v[k] = 2 * a
+            nrm = np.zeros(3)
+            nrm[i] = s
+            patches.append(_rect(o, u, v, nrm))
+    edges = _Edges()
+    corners = np.array([[x, y, z] for x in (-a, a) for y in (-a, a) for z in (-a, a)])
+    for i in range(8):
+        for j in range(i + 1, 8):
+            if np.count_nonzero(corners[i] != corners[j]) == 1:
+                edges.segment(corners[i], corners[j], 90.0)
+    return patches, edges, None, None
+
+
+def _build_octahedron():
+    patches = []
+    for sx in (-1.0, 1.0):
+        for sy in (-1.0, 1.0):
+            for sz in (-1.0, 1.0):
+                patches.append(_tri([sx, 0, 0], [0, sy, 0], [0, 0, sz], [sx, sy, sz]))
+    edges = _Edges()
+    angle = np.degrees(np.arccos(1.0 / 3.0))  # 70.53°
+    e = np.eye(3)
+    for i in range(3):
+        for j in range(i + 1, 3):
+            for si in (-1.0, 1.0):
+                for sj in (-1.0, 1.0):
+                    edges.segment(si * e[i], sj * e[j], angle)
+    return patches, edges, None, None
+
+
+_BLOCK = dict(ax=1.0, ay=0.75, az=0.5, r=0.4)
+
+
+def _build_block():
+    """Box [-1,1]x[-0.75,0.75]x[-0.5,0.5] with a vertical (z) cylindrical through-
+    hole of radius 0.4 at the centre; 12 box edges and the two hole rims are 90°."""
+    ax, ay, az, r = (_BLOCK[k] for k in ("ax", "ay", "az", "r"))
+    outside = lambda p: p[:, 0] ** 2 + p[:, 1] ** 2 >= r * r  # noqa: E731
+    patches = [
+        _rect([ax, -ay, -az], [0, 2 * ay, 0], [0, 0, 2 * az], [1, 0, 0]),
+        _rect([-ax, -ay, -az], [0, 2 * ay, 0], [0, 0, 2 * az], [-1, 0, 0]),
+        _rect([-ax, ay, -az], [2 * ax, 0, 0], [0, 0, 2 * az], [0, 1, 0]),
+        _rect([-ax, -ay, -az], [2 * ax, 0, 0], [0, 0, 2 * az], [0, -1, 0]),
+        _rect([-ax, -ay, az], [2 * ax, 0, 0], [0, 2 * ay, 0], [0, 0, 1], keep=outside),
+        _rect([-ax, -ay, -az], [2 * ax, 0, 0], [0, 2 * ay, 0], [0, 0, -1], keep=outside),
+        _cylinder([0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], r, (0.0, 2 * np.pi),
+                  (-az, az), inward=True),
+    ]
+    edges = _Edges()
+    corners = np.array([[x, y, z] for x in (-ax, ax) for y in (-ay, ay) for z in (-az, az)])
+    for i in range(8):
+        for j in range(i + 1, 8):
+            if np.count_nonzero(corners[i] != corners[j]) == 1:
+                edges.segment(corners[i], corners[j], 90.0)
+    edges.circle([0, 0, az], [0, 0, 1], r, 90.0)
+    edges.circle([0, 0, -az], [0, 0, 1], r, 90.0)
+    return patches, edges, None, None
+
+
+def _star_polygon(tips=5, r_out=1.0, r_in=0.45):
+    k = np.arange(2 * tips)
+    ang = np.pi / 2 + k * np.pi / tips
+    rad = np.where(k % 2 == 0, r_out, r_in)
+    return np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])  # CCW
+
+
+def _build_star():
+    """Five-pointed star (outer radius 1, inner 0.45) extruded over z in
+    [-0.25, 0.25]: flat top/bottom, ten side walls; creases at every polygon
+    edge (90°) and at the convex tips and reflex notches (vertical edges)."""
+    poly = _star_polygon()
+    zt = 0.25
+    m = len(poly)
+    patches = []
+    side_n = []
+    for i in range(m):
+        p, q = poly[i], poly[(i + 1) % m]
+        patches.append(_tri([0, 0, zt], [p[0], p[1], zt], [q[0], q[1], zt], [0, 0, 1]))
+        patches.append(_tri([0, 0, -zt], [p[0], p[1], -zt], [q[0], q[1], -zt], [0, 0, -1]))
+        d = q - p
+        nrm = _unit([d[1], -d[0], 0.0])  # outward for a CCW polygon
+        side_n.append(nrm)
+        patches.append(_rect([p[0], p[1], -zt], [d[0], d[1], 0], [0, 0, 2 * zt], nrm))
+    edges = _Edges()
+    for i in range(m):
+        p, q = poly[i], poly[(i + 1) % m]
+        edges.segment([p[0], p[1], zt], [q[0], q[1], zt], 90.0)
+        edges.segment([p[0], p[1], -zt], [q[0], q[1], -zt], 90.0)
+        ang = np.degrees(np.arccos(np.clip(side_n[i - 1] @ side_n[i], -1, 1)))
+        edges.segment([p[0], p[1], -zt], [p[0], p[1], zt], ang)
+    return patches, edges, None, None
+
+
+_FAN = dict(R=2.0, zc=-1.0, ax=1.0, ay=0.5, cut=1.3)
+
+
+def _fan_top(x):
+    return _FAN["zc"] + np.sqrt(_FAN["R"] ** 2 - x * x)
+
+
+def _build_fandisk():
+    """Fandisk-like part: block x in [-1,1], y in [-0.5,0.5], bottom z = 0, whose
+    top is a cylinder of radius 2 with axis along y through (0, ., -1) (height 1 at
+    x = 0, 0.732 at x = ±1), with the vertical corner edge at (+1, +0.5) cut by
+    the slanted plane x + y = 1.3.  Creases: top/front and top/back 90°,
+    top/±x sides 60°, top/cut 69-73° (a non-planar curve), cut/sides 45°, the
+    other vertical and all bottom edges 90°.  The cylinder is a smooth curved
+    face, so curvature alone must not flag it."""
+    R, zc, ax, ay, cut = (_FAN[k] for k in ("R", "zc", "ax", "ay", "cut"))
+    tmax = np.arcsin(ax / R)
+    under = lambda p: p[:, 2] <= _fan_top(p[:, 0])  # noqa: E731
+    incut = lambda p: p[:, 0] + p[:, 1] <= cut  # noqa: E731
+    xc = cut - ay  # x where the cut meets the back face (0.8)
+    yc = cut - ax  # y where the cut meets the +x face (0.3)
+    patches = [
+        # top cylinder: theta from the +z axis toward +x, axis along y
+        _cylinder([0, 0, zc], [0, 0, 1], [1, 0, 0], [0, 1, 0], R, (-tmax, tmax),
+                  (-ay, ay), keep=incut),
+        _rect([-ax, -ay, 0], [2 * ax, 0, 0], [0, 0, 1], [0, -1, 0], keep=under),
+        _rect([-ax, ay, 0], [ax + xc, 0, 0], [0, 0, 1], [0, 1, 0], keep=under),
+        _rect([xc, ay, 0], [ax - xc, yc - ay, 0], [0, 0, 1], [1, 1, 0], keep=under),
+        _rect([ax, -ay, 0], [0, yc + ay, 0], [0, 0, _fan_top(ax)], [1, 0, 0]),
+        _rect([-ax, -ay, 0], [0, 2 * ay, 0], [0, 0, _fan_top(-ax)], [-1, 0, 0]),
+        _rect([-ax, -ay, 0], [2 * ax, 0, 0], [0, 2 * ay, 0], [0, 0, -1], keep=incut),
+    ]
+    edges = _Edges()
+    base = np.array([[-ax, -ay], [ax, -ay], [ax, yc], [xc, ay], [-ax, ay]])
+    vert_ang = [90.0, 90.0, 45.0, 45.0, 90.0]
+    for i in range(5):
+        p, q = base[i], base[(i + 1) % 5]
+        edges.segment([p[0], p[1], 0], [q[0], q[1], 0], 90.0)
+        edges.segment([p[0], p[1], 0], [p[0], p[1], _fan_top(p[0])], vert_ang[i])
+    xs = np.linspace(-ax, ax, 257)
+    edges.polyline(np.column_stack([xs, np.full_like(xs, -ay), _fan_top(xs)]), 90.0)
+    xs = np.linspace(-ax, xc, 231)
+    edges.polyline(np.column_stack([xs, np.full_like(xs, ay), _fan_top(xs)]), 90.0)
+    xs = np.linspace(xc, ax, 33)
+    xm = 0.5 * (xs[1:] + xs[:-1])
+    cut_ang = np.degrees(np.arccos((xm / R) / np.sqrt(2.0)))
+    edges.polyline(np.column_stack([xs, cut - xs, _fan_top(xs)]), cut_ang)
+    side_ang = np.degrees(np.arccos(ax / R))  # 60°
+    edges.segment([ax, -ay, _fan_top(ax)], [ax, yc, _fan_top(ax)], side_ang)
+    edges.segment([-ax, -ay, _fan_top(-ax)], [-ax, ay, _fan_top(-ax)], side_ang)
+    return patches, edges, None, None
+
+
+def _build_sphere():
+    return [_sphere(1.0)], _Edges(), None, None
+
+
+def _square_boundary(p):
+    return np.minimum(1.0 - np.abs(p[:, 0]), 1.0 - np.abs(p[:, 1]))
+
+
+def _build_plane():
+    """Square patch [-1,1]^2 at z = 0, normal +z, open boundary."""
+    return ([_rect([-1, -1, 0], [2, 0, 0], [0, 2, 0], [0, 0, 1])], _Edges(),
+            _square_boundary, None)
+
+
+def _build_disc():
+    """Flat unit disc at z = 0, normal +z; its circle is the boundary."""
+    keep = lambda p: p[:, 0] ** 2 + p[:, 1] ** 2 <= 1.0  # noqa: E731
+    bd = lambda p: 1.0 - np.hypot(p[:, 0], p[:, 1])  # noqa: E731
+    return [_rect([-1, -1, 0], [2, 0, 0], [0, 2, 0], [0, 0, 1], keep=keep)], _Edges(), bd, None
+
+
+#: bumps of "bumpy_plane": (cx, cy, amplitude, sigma); one is a dent
+BUMPS = np.array([
+    [-0.50, -0.40, 0.25, 0.15],
+    [0.45, 0.50, 0.15, 0.12],
+    [0.40, -0.45, -0.20, 0.16],
+    [-0.40, 0.45, 0.10, 0.10],
+])
+
+
+def _bumps(x, y):
+    """Height, gradient and per-bump normalised magnitude of the bump field."""
+    dx = x[:, None] - BUMPS[:, 0]
+    dy = y[:, None] - BUMPS[:, 1]
+    g = np.exp(-(dx * dx + dy * dy) / (2 * BUMPS[:, 3] ** 2))  # (n, 4)
+    z = (BUMPS[:, 2] * g).sum(axis=1)
+    fx = (-BUMPS[:, 2] * g * dx / BUMPS[:, 3] ** 2).sum(axis=1)
+    fy = (-BUMPS[:, 2] * g * dy / BUMPS[:, 3] ** 2).sum(axis=1)
+    return z, fx, fy, g
+
+
+def _build_bumpy_plane():
+    """Square [-1,1]^2 height field z = sum_k a_k exp(-r_k^2 / (2 s_k^2)) with the
+    four bumps of ``BUMPS`` (one a dent).  Ground truth: ``extra["saliency"]`` =
+    max_k exp(-r_k^2/(2 s_k^2)) in [0, 1] and ``extra["salient"]`` = saliency >
+    exp(-2) (within 2 s_k of a bump centre)."""
+    # upper bound of |grad f| (triangle inequality over bumps, each |a|/s e^-1/2)
+    gmax = float(np.sum(np.abs(BUMPS[:, 2]) / BUMPS[:, 3]) * np.exp(-0.5))
+    jmax = np.sqrt(1.0 + gmax * gmax)
+
+    def draw(m, rng):
+        xy = 2.0 * rng.random((m, 2)) - 1.0
+        z, fx, fy, _ = _bumps(xy[:, 0], xy[:, 1])
+        jac = np.sqrt(1.0 + fx * fx + fy * fy)
+        nrm = np.column_stack([-fx, -fy, np.ones(m)]) / jac[:, None]
+        return np.column_stack([xy, z]), nrm, jac / jmax
+
+    def extra(p):
+        _, _, _, g = _bumps(p[:, 0], p[:, 1])
+        sal = g.max(axis=1)
+        return {"saliency": sal, "salient": sal > np.exp(-2.0)}
+
+    return [_Patch(4.0 * jmax, draw)], _Edges(), _square_boundary, extra
+
+
+_BUILDERS = {
+    "cube": _build_cube, "octahedron": _build_octahedron, "block": _build_block,
+    "star": _build_star, "fandisk": _build_fandisk, "sphere": _build_sphere,
+    "plane": _build_plane, "bumpy_plane": _build_bumpy_plane, "disc": _build_disc,
+}
+
+
+def _rigid_motion(seed):
+    rng = np.random.default_rng([0 if seed is None else seed, 7919])
+    rot = Rotation.random(random_state=rng).as_matrix()
+    return rot, rng.uniform(-1.0, 1.0, 3)
+
+
+def make_shape(name: str, n: int = 20000, seed: int | None = 0, uniform: bool = True,
+               rotate: bool = False, scale: float = 1.0, *, sharp_angle_deg: float = 30.0,
+               sharp_width: float = 1.0, rim_width: float = 1.5) -> Sample:
+    """Sample a synthetic shape with exact normals and feature labels.
+
+    Parameters
+    ----------
+    name : str
+        One of ``SHAPES``: "cube" (side 1, centred), "octahedron" (vertices ±e_i),
+        "block" (box with a cylindrical through-hole), "star" (extruded star),
+        "fandisk" (curved top, slanted cut), "sphere" (radius 1), "plane" (square
+        [-1,1]^2, open), "bumpy_plane" (plane with Gaussian bumps), "disc" (unit disc).
+    n : int, default=20000
+        Exact number of points (>= 7).
+    seed : int or None, default=0
+        Sampling seed.  The rigid motion of ``rotate`` uses its own stream, so the
+        same seed gives the same canonical points with or without it.
+    uniform : bool, default=True
+        Uniform by area; otherwise density 1:5 linear along canonical x (module notes).
+    rotate : bool, default=False
+        Apply a random rotation and a translation in [-1, 1]^3 (seeded).
+    scale : float, default=1.0
+        Multiplies all coordinates (after the motion); h scales with it.
+    sharp_angle_deg : float, default=30
+        Edges whose dihedral (normal-to-normal) angle exceeds this are sharp.
+    sharp_width : float, default=1
+        Band half-width around sharp edges, in units of h.
+    rim_width : float, default=1.5
+        Band width inside open boundaries, in units of h.
+
+    Returns
+    -------
+    Sample
+        ``extra["edge_distance"]`` holds each point's distance to the nearest sharp
+        edge (in output units, inf when none) and ``extra["boundary_distance"]`` the
+        distance to the open border for open shapes.
+    """
+    func = "make_shape"
+    check_choice(name, func=func, name="name", choices=SHAPES)
+    n = check_param(n, func=func, name="n", kind=int, low=7, unit="count")
+    seed = check_seed(seed, func=func)
+    uniform = check_param(uniform, func=func, name="uniform", kind=bool)
+    rotate = check_param(rotate, func=func, name="rotate", kind=bool)
+    scale = check_param(scale, func=func, name="scale", low=0.0, closed="neither")
+    sharp_angle_deg = check_param(sharp_angle_deg, func=func, name="sharp_angle_deg",
+                                  low=0.0, high=180.0, unit="deg")
+    sharp_width = check_param(sharp_width, func=func, name="sharp_width", low=0.0, unit="h")
+    rim_width = check_param(rim_width, func=func, name="rim_width", low=0.0, unit="h")
+
+    patches, edges, boundary, extra_fn = _BUILDERS[name]()
+    rng = np.random.default_rng(seed)
+    density = None
+    if not uniform:
+        lo, hi = _x_range(patches)
+
+        def density(p):
+            return 1.0 + 4.0 * np.clip((p[:, 0] - lo) / (hi - lo), 0.0, 1.0)
+
+    pts, nrm = _sample_patches(patches, n, rng, density, 5.0)
+    h0 = average_spacing(pts)
+    ed = edges.distance(pts, sharp_angle_deg)
+    sharp = ed <= sharp_width * h0
+    extra = {"edge_distance": ed * scale}
+    if boundary is not None:
+        bd = boundary(pts)
+        rim = bd <= rim_width * h0
+        extra["boundary_distance"] = bd * scale
+    else:
+        rim = np.zeros(n, dtype=bool)
+    if extra_fn is not None:
+        extra.update(extra_fn(pts))
+    if density is not None:
+        extra["density"] = density(pts) / 5.0
+    if rotate:
+        rot, t = _rigid_motion(seed)
+        pts = pts @ rot.T + t
+        nrm = nrm @ rot.T
+        extra["rotation"], extra["translation"] = rot, t * scale
+    pts = pts * scale
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    h = average_spacing(pts)
+    log.info("make_shape(%s): n=%d h=%.4g sharp=%d rim=%d", name, n, h, sharp.sum(), rim.sum())
+    return Sample(pts, nrm, sharp, rim, h, name, None, extra)
+
+
+def _x_range(patches):
+    """x extent of the patches (from a small seeded probe sample)."""
+    p, _ = _sample_patches(patches, 4000, np.random.default_rng(12345))
+    lo, hi = float(p[:, 0].min()), float(p[:, 0].max())
+    return lo, hi if hi > lo else lo + 1.0
+
+
+# ---------------------------------------------------------------------------
+# noise
+
+def add_noise(points, normals=None, sigma: float = 0.2, h: float | None = None,
+              kind: str = "normal", seed: int | None = 0, *, fraction: float = 0.1
+              ) -> np.ndarray:
+    """Return a noisy copy of ``points`` (thesis §4.5 noise models).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    normals : (n, 3) float, optional
+        Required for ``kind="normal"`` and ``"impulsive"``; normalised here.
+    sigma : float, default=0.2
+        Noise level in units of h.
+    h : float, optional
+        Average spacing; computed from ``points`` when None.
+    kind : {"normal", "random", "impulsive"}
+        * ``"normal"``: p + ε n with ε ~ N(0, (σh)^2) per point.
+        * ``"random"``: p + ε u with u uniform on the unit sphere and ε ~ N(0,
+          (σh)^2) per point, so the displacement length has RMS σh in a random
+          direction (its normal component has RMS σh/√3).
+        * ``"impulsive"``: a random ``fraction`` (default 10 %) of the points get
+          p + ε n with ε ~ N(0, (σh)^2); the others are untouched.  This is the
+          usual impulsive model of the mesh-denoising literature; the thesis uses
+          σ = 0.5h along the normal (Fig. 4.11) without defining it further.
+    seed : int or None, default=0
+    fraction : float, default=0.1
+        Share of points hit by impulsive noise, in (0, 1].
+
+    Returns
+    -------
+    noisy : (n, 3) float
+        A new array; the inputs are not modified.
+    """
+    func = "add_noise"
+    pts = as_points(points, func=func)
+    kind = check_choice(kind, func=func, name="kind", choices=NOISE_KINDS)
+    sigma = check_param(sigma, func=func, name="sigma", low=0.0, unit="h")
+    fraction = check_param(fraction, func=func, name="fraction", low=0.0, high=1.0,
+                           closed="right")
+    seed = check_seed(seed, func=func)
+    if h is None:
+        h = average_spacing(pts)
+    else:
+        h = check_param(h, func=func, name="h", low=0.0, closed="neither")
+    if kind in ("normal", "impulsive"):
+        if normals is None:
+            raise PointCloudError(f"{func}: kind={kind!r} needs normals")
+        nrm = as_normals(normals, len(pts), func=func)
+    rng = np.random.default_rng(seed)
+    n = len(pts)
+    eps = rng.normal(0.0, sigma * h, n)
+    if kind == "normal":
+        return pts + eps[:, None] * nrm
+    if kind == "random":
+        u = rng.normal(size=(n, 3))
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+        return pts + eps[:, None] * u
+    hit = np.zeros(n, dtype=bool)
+    hit[rng.choice(n, size=max(1, int(round(fraction * n))), replace=False)] = True
+    return pts + np.where(hit, eps, 0.0)[:, None] * nrm

@@ -1,0 +1,200 @@
+"""MeshSet conversion and apply_filter, on a tiny filter declared here, plus
+contract tests over every registered filter."""
+
+import numpy as np
+import pymeshlab
+import pytest
+
+from filters._params import Param, resolve_params
+from filters._validation import InvalidParameterError, PointCloudError
+from filters.neighbors import pca_normals
+from meshlab_bridge import registry
+from meshlab_bridge.apply import apply_filter, filter_list, filter_parameter_text
+from meshlab_bridge.convert import Cloud, cloud_to_mesh, mesh_to_cloud, save_cloud, load_cloud
+from tests.conftest import sphere_points
+
+
+# --- conversion ----------------------------------------------------------------------
+
+def _full_cloud(n=200, seed=0):
+    g = np.random.default_rng(seed)
+    pts = g.normal(size=(n, 3)) * 1e3 + 1e6  # UTM-like offsets
+    nrm = g.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    col = g.random((n, 4))
+    q = g.normal(size=n)
+    return Cloud(pts, nrm, col, q, None, {"intensity": g.random(n)}, label="scan")
+
+
+def test_mesh_round_trip_is_bit_exact():
+    c = _full_cloud()
+    back = mesh_to_cloud(cloud_to_mesh(c), attributes=("intensity",))
+    assert np.array_equal(back.points, c.points)
+    assert np.array_equal(back.normals, c.normals)
+    assert np.array_equal(back.quality, c.quality)
+    assert np.allclose(back.colors, c.colors, atol=1 / 255)  # MeshLab stores 8-bit colour
+    assert np.array_equal(back.attributes["intensity"], c.attributes["intensity"])
+
+
+def test_zero_normals_count_as_absent():
+    m = pymeshlab.Mesh(vertex_matrix=sphere_points(50))
+    assert mesh_to_cloud(m).normals is None
+
+
+def test_ply_file_round_trip_keeps_precision(tmp_path):
+    c = _full_cloud()
+    path = tmp_path / "x.ply"
+    save_cloud(c.with_(attributes={}), str(path))
+    back = load_cloud(str(path))
+    assert np.array_equal(back.points, c.points)
+    assert np.allclose(back.normals, c.normals, atol=1e-6)
+    assert np.allclose(back.quality, c.quality, atol=1e-6)
+
+
+def test_unreadable_and_truncated_files_are_named(tmp_path):
+    with pytest.raises(PointCloudError, match="no such file"):
+        load_cloud(str(tmp_path / "missing.ply"))
+    c = _full_cloud()
+    good = tmp_path / "good.ply"
+    save_cloud(c.with_(attributes={}), str(good))
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(good.read_bytes()[:700])
+    with pytest.raises(PointCloudError, match="bad.ply"):
+        load_cloud(str(bad))
+    junk = tmp_path / "junk.ply"
+    junk.write_text("this is not a ply file\n")
+    with pytest.raises(PointCloudError, match="junk.ply"):
+        load_cloud(str(junk))
+
+
+def test_save_refuses_formats_that_lose_required_attributes(tmp_path):
+    c = _full_cloud()
+    out = tmp_path / "y.obj"
+    with pytest.raises(PointCloudError, match="quality"):
+        save_cloud(c.with_(attributes={}), str(out), require=("quality",))
+    assert not out.exists()
+    assert not list(tmp_path.iterdir())  # no temporary file left behind
+
+
+# --- apply_filter on filters declared here -------------------------------------------
+
+TEST_PARAMS = (Param("k", int, 12, "neighbours", low=4, high=64, unit="count"),)
+
+
+class _Res:
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def _flatten(points, normals=None, *, k=12):
+    p = resolve_params(TEST_PARAMS, {"k": k}, "_flatten")
+    pts = np.array(points, dtype=float)
+    n = pca_normals(pts, p["k"])
+    mask = pts[:, 2] > 0.5
+    return _Res(points=pts * 2.0, normals=n, mask=mask, score=np.clip(pts[:, 2], 0, 1),
+                keep=np.flatnonzero(mask))
+
+
+SPECS = {
+    kind: registry.FilterSpec(
+        name=f"_test_{kind}", command=f"_test_{kind}", label="test", description="Test filter.",
+        func=_flatten, params=TEST_PARAMS, kind=kind,
+        mask_field="mask" if kind in ("coord", "selection") else None,
+        scalar_field="score" if kind in ("scalar", "selection") else None,
+        index_field="keep" if kind == "new_layer" else None,
+    )
+    for kind in ("coord", "scalar", "selection", "new_layer")
+}
+
+
+@pytest.fixture
+def test_specs():
+    registry.load_all()
+    for s in SPECS.values():
+        registry.register(s)
+    yield SPECS
+    for s in SPECS.values():
+        registry.FILTERS.pop(s.name, None)
+
+
+def _meshset(pts, quality=None):
+    ms = pymeshlab.MeshSet()
+    kw = {"vertex_matrix": pts}
+    if quality is not None:
+        kw["v_scalar_array"] = quality
+    ms.add_mesh(pymeshlab.Mesh(**kw), "scan")
+    return ms
+
+
+def test_coord_filter_replaces_positions_and_selects_mask(test_specs):
+    pts = sphere_points(600)
+    ms = _meshset(pts, quality=np.full(600, 7.0))
+    out = apply_filter(ms, "_test_coord", k=10)
+    m = ms.current_mesh()
+    assert ms.mesh_number() == 1 and m.label() == "scan"
+    assert np.array_equal(m.vertex_matrix(), 2.0 * pts)
+    sel = m.vertex_selection_array()
+    assert np.array_equal(sel, pts[:, 2] > 0.5)
+    assert out["selected"] == int((pts[:, 2] > 0.5).sum())
+    assert np.array_equal(m.vertex_custom_scalar_attribute_array("quality_before"), np.full(600, 7.0))
+
+
+def test_selection_filter_with_empty_mask_selects_nothing(test_specs):
+    pts = sphere_points(300) * [1, 1, 0.1]  # z never exceeds 0.5
+    ms = _meshset(pts)
+    apply_filter(ms, "_test_selection")
+    assert ms.current_mesh().selected_vertex_number() == 0
+    assert np.allclose(ms.current_mesh().vertex_custom_scalar_attribute_array("score"),
+                       np.clip(pts[:, 2], 0, 1))
+
+
+def test_scalar_filter_writes_quality_and_colour_ramp(test_specs):
+    pts = sphere_points(400)
+    ms = _meshset(pts)
+    apply_filter(ms, "_test_scalar")
+    m = ms.current_mesh()
+    assert np.allclose(m.vertex_scalar_array(), np.clip(pts[:, 2], 0, 1))
+    col = m.vertex_color_matrix()
+    hi, lo = np.argmax(pts[:, 2]), np.argmin(pts[:, 2])
+    assert not np.allclose(col[hi], col[lo])
+
+
+def test_new_layer_filter_adds_current_layer_with_kept_points(test_specs):
+    pts = sphere_points(500)
+    ms = _meshset(pts, quality=np.arange(500.0))
+    out = apply_filter(ms, "_test_new_layer")
+    assert ms.mesh_number() == 2 and out["mesh_id"] == ms.current_mesh_id()
+    keep = np.flatnonzero(pts[:, 2] > 0.5)
+    assert np.array_equal(ms.current_mesh().vertex_matrix(), pts[keep])
+    assert np.array_equal(ms.current_mesh().vertex_scalar_array(), keep.astype(float))
+    assert np.array_equal(ms.mesh(0).vertex_matrix(), pts)  # the input layer is untouched
+
+
+def test_apply_filter_validates_before_touching_the_meshset(test_specs):
+    pts = sphere_points(300)
+    ms = _meshset(pts)
+    with pytest.raises(InvalidParameterError, match="k must be in"):
+        apply_filter(ms, "_test_coord", k=1000)
+    with pytest.raises(InvalidParameterError, match="unknown parameter"):
+        apply_filter(ms, "_test_coord", kk=3)
+    assert ms.mesh_number() == 1 and np.array_equal(ms.current_mesh().vertex_matrix(), pts)
+    with pytest.raises(InvalidParameterError, match="unknown filter"):
+        apply_filter(ms, "no_such_filter")
+
+
+def test_parameter_text_lists_units_and_ranges(test_specs):
+    text = filter_parameter_text("_test_coord")
+    assert "k : int = 12 [count] range [4, 64]" in text
+    assert "_test_coord" in filter_list()
+
+
+def test_xyz_round_trip_is_full_precision_and_rejects_nan_rows(tmp_path):
+    c = _full_cloud()
+    path = tmp_path / "c.xyz"
+    save_cloud(c.with_(colors=None, quality=None, attributes={}), str(path))
+    back = load_cloud(str(path))
+    assert np.array_equal(back.points, c.points) and np.array_equal(back.normals, c.normals)
+    bad = tmp_path / "nan.xyz"
+    bad.write_text("0 0 0\nnan 1 2\n1 1 1\n")
+    back = load_cloud(str(bad))  # read as is; the filters reject the NaN row by index
+    assert len(back) == 3 and np.isnan(back.points[1]).all()

@@ -1,0 +1,106 @@
+"""The pcprep command line: info, filters, per-filter commands, errors."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from meshlab_bridge import registry
+from meshlab_bridge.cli import main
+from meshlab_bridge.convert import Cloud, load_cloud, save_cloud
+from tests.conftest import sphere_points
+from tests.test_bridge import SPECS
+
+
+@pytest.fixture
+def specs():
+    registry.load_all()
+    for s in SPECS.values():
+        registry.register(s)
+    yield
+    for s in SPECS.values():
+        registry.FILTERS.pop(s.name, None)
+
+
+@pytest.fixture
+def cloud_file(tmp_path):
+    path = tmp_path / "in.ply"
+    save_cloud(Cloud(sphere_points(800) * 5.0 + 100.0), str(path))
+    return path
+
+
+def test_info_reports_count_spacing_and_box(cloud_file, capsys):
+    assert main(["info", str(cloud_file)]) == 0
+    out = capsys.readouterr().out
+    assert "points: 800" in out
+    h = float(out.split("average spacing h: ")[1].split()[0])
+    assert 0.3 < h < 1.0
+    assert "bounding box min: 95" in out
+
+
+def test_filter_command_writes_every_point_in_order(specs, cloud_file, tmp_path):
+    out = tmp_path / "out.ply"
+    assert main(["_test_selection", str(cloud_file), str(out), "--k", "8", "--quiet"]) == 0
+    got = load_cloud(str(out))
+    src = load_cloud(str(cloud_file))
+    assert np.array_equal(got.points, src.points)
+    assert set(np.unique(got.quality)) <= {0.0, 1.0}
+    assert np.array_equal(got.quality == 1.0, src.points[:, 2] > 0.5)
+
+
+def test_new_layer_command_writes_kept_points(specs, cloud_file, tmp_path):
+    out = tmp_path / "kept.ply"
+    assert main(["_test_new_layer", str(cloud_file), str(out), "--quiet"]) == 0
+    src = load_cloud(str(cloud_file)).points
+    assert np.array_equal(load_cloud(str(out)).points, src[src[:, 2] > 0.5])
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--k", "1000"], "k must be in [4, 64]"),
+        (["--k", "abc"], "invalid int value"),
+    ],
+)
+def test_bad_parameters_fail_cleanly_without_output(specs, cloud_file, tmp_path, capfd, args, message):
+    out = tmp_path / "o.ply"
+    code = None
+    try:
+        code = main(["_test_coord", str(cloud_file), str(out), *args])
+    except SystemExit as exc:  # argparse type errors
+        code = exc.code
+    assert code not in (0, None)
+    err = capfd.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_bad_input_files_fail_cleanly_without_output(specs, tmp_path, capsys):
+    out = tmp_path / "o.ply"
+    assert main(["_test_coord", str(tmp_path / "nope.ply"), str(out)]) == 1
+    assert "no such file" in capsys.readouterr().err
+    nan = tmp_path / "nan.xyz"
+    pts = sphere_points(100)
+    pts[3] = np.nan
+    np.savetxt(nan, pts)
+    assert main(["_test_coord", str(nan), str(out)]) == 1
+    assert not out.exists()
+
+
+def test_filters_listing_and_help_come_from_the_registry(specs, capsys):
+    assert main(["filters"]) == 0
+    out = capsys.readouterr().out
+    assert "pcprep _test_coord  ->  _test_coord" in out
+    with pytest.raises(SystemExit) as exc:
+        main(["_test_coord", "--help"])
+    assert exc.value.code == 0
+    assert "neighbours [count]" in capsys.readouterr().out
+
+
+def test_console_entry_point_runs_as_a_module(cloud_file):
+    proc = subprocess.run([sys.executable, "-m", "meshlab_bridge.cli", "info", str(cloud_file)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "points: 800" in proc.stdout
