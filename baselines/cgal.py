@@ -231,7 +231,7 @@ def hierarchy_simplify(points, size: int = 10, maximum_variation: float = 1.0 / 
     func = "hierarchy_simplify"
     X = as_points(points, func=func)
     size = _check_int(size, "size", func, 1)
-    var = _check_real(maximum_variation, "maximum_variation", func, 0.0, 1.0 / 3.0 + 1e-12)
+    var = _check_real(maximum_variation, "maximum_variation", func, 0.0, 1.0)
     Xc, _ = centered(X)
     ps = to_point_set(Xc)
     _psp().hierarchy_simplify_point_set(ps, size, var)
@@ -376,7 +376,14 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_i
         return ps.size()
 
     best = None  # (kept, (size, var))
-    lo, hi = 1, len(X)                       # size=1 keeps all; size=n keeps few
+    n = len(X)
+    lo, hi = 1, min(n, max(2, math.ceil(2.0 * n / count)))   # size=1 keeps all points
+    got = run(hi, var0)
+    best = _closest(best, got, (hi, var0), count)
+    while got > count and hi < n:            # expand until kept(hi) <= count
+        lo, hi = hi, min(n, 2 * hi)
+        got = run(hi, var0)
+        best = _closest(best, got, (hi, var0), count)
     while hi - lo > 1:                       # invariant: kept(lo) > count >= kept(hi)
         mid = (lo + hi) // 2
         got = run(mid, var0)
