@@ -358,6 +358,11 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_i
     points) by log-scale bisection at that size until
     ``|kept - count| <= rtol * count`` (default 1 %).  The closest result found
     is returned.  Returns sorted kept indices.
+
+    Targets between kept(size=2) and kept(size=3) (about 43-61 % of a surface
+    cloud) are NOT reachable: clusters of <= 3 points are always coplanar
+    (variation 0) and never split by the variation test, so only the nearer of
+    the two counts can be returned; check ``len(kept)`` in benches.
     """
     func = "hierarchy_simplify_count"
     X = as_points(points, func=func, min_points=2)
@@ -392,7 +397,7 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_i
             lo = mid
         else:
             hi = mid
-    if best is None or abs(best[0] - count) > rtol * count:
+    if abs(best[0] - count) > rtol * count and hi >= 4:
         got = run(hi, var0)
         best = _closest(best, got, (hi, var0), count)
         vlo, vhi = math.log(1e-9), math.log(var0)   # vlo keeps more, vhi keeps fewer

@@ -191,72 +191,92 @@ def _lars_chunk(X, D, alpha, K, max_steps):
 
     Minimises ½‖x − βD‖² + alpha‖β‖₁ for every row x of X.  The active set of
     each signal is held in a padded index array ``act`` (c, K) with ``nact``
-    valid entries; padded slots carry an identity block so one batched solve
-    serves signals with active sets of different sizes.
+    valid entries (padded slots repeat the first active atom); padded slots
+    carry an identity block so one batched solve serves signals with active
+    sets of different sizes.  Correlations are recomputed from the residual
+    in signal space (one (c, d) × (d, S) product per event).
     """
     c, d = X.shape
-    S = D.shape[0]
     G = D @ D.T
     beta_act = np.zeros((c, K))
-    act = np.zeros((c, K), dtype=np.int64)
-    nact = np.zeros(c, dtype=np.int64)
-    Cor = X @ D.T  # correlations c_j = d_j·(x − βD)
-    j0 = np.argmax(np.abs(Cor), axis=1)
-    lam = np.abs(Cor[np.arange(c), j0])
+    R = X.copy()
+    cor0 = X @ D.T
+    j0 = np.argmax(np.abs(cor0), axis=1)
+    lam = np.abs(cor0[np.arange(c), j0])
+    del cor0
     live = lam > alpha
-    act[:, 0] = j0
-    nact[live] = 1
+    act = np.repeat(j0[:, None], K, axis=1)
+    nact = np.ones(c, dtype=np.int64)
     slot = np.arange(K)
+    eye = np.eye(K)
+    D32 = D.astype(np.float32)
+    last_drop = j0.copy()  # an atom that just left may not re-enter at γ = 0
+    # (initialised to an active atom, where blocking it changes nothing)
     for _ in range(max_steps):
         rows = np.flatnonzero(live)
         if rows.size == 0:
             break
+        nr = rows.size
         a_idx = act[rows]
         na = nact[rows]
         valid = slot[None, :] < na[:, None]
-        cor = Cor[rows]
+        cor = R[rows] @ D.T
         lam_r = lam[rows]
         s_act = np.sign(np.take_along_axis(cor, a_idx, axis=1)) * valid
         Gs = G[a_idx[:, :, None], a_idx[:, None, :]]
-        vv = valid[:, :, None] & valid[:, None, :]
-        Gs = np.where(vv, Gs, 0.0) + np.where(valid, 1e-12, 1.0)[:, :, None] * np.eye(K)
+        Gs *= valid[:, :, None] & valid[:, None, :]
+        Gs += np.where(valid, 1e-12, 1.0)[:, :, None] * eye
         w = np.linalg.solve(Gs, s_act[:, :, None])[:, :, 0] * valid
         # correlation change per unit step: a = G[:, A] w = D (D_A^T w)
         u = np.einsum("ck,ckd->cd", w, D[a_idx])
-        a = u @ D.T
-        # joining: |c_j − γ a_j| = λ − γ
+        # joining: |c_j − γ a_j| = λ − γ.  The candidate atom is *selected* in
+        # float32 (the (c, S) passes dominate the cost); its step is then
+        # recomputed in float64.  For inactive j both numerators are positive,
+        # so a non-positive denominator means "never".
+        cor32 = cor.astype(np.float32)
+        a32 = u.astype(np.float32) @ D32.T
+        lam32 = lam_r.astype(np.float32)[:, None]
+        g1 = lam32 - cor32
+        den = 1.0 - a32
+        np.maximum(den, 1e-30, out=den)
+        np.divide(g1, den, out=g1)
+        np.add(cor32, lam32, out=cor32)
+        np.add(a32, 1.0, out=a32)
+        np.maximum(a32, 1e-30, out=a32)
+        np.divide(cor32, a32, out=cor32)
+        np.minimum(g1, cor32, out=g1)
+        np.put_along_axis(g1, a_idx, np.inf, axis=1)
+        np.put_along_axis(g1, last_drop[rows][:, None], np.inf, axis=1)
+        g1[na >= K] = np.inf
+        jj = np.argmin(g1, axis=1)
+        ok = np.isfinite(g1[np.arange(nr), jj])
+        del g1, den, cor32, a32
+        cj = cor[np.arange(nr), jj]
+        aj = np.einsum("cd,cd->c", u, D[jj])
         with np.errstate(divide="ignore", invalid="ignore"):
-            g1 = (lam_r[:, None] - cor) / (1.0 - a)
-            g2 = (lam_r[:, None] + cor) / (1.0 + a)
-        tiny = 1e-12 * np.maximum(lam_r, 1e-300)[:, None]
-        g1 = np.where(np.isfinite(g1) & (g1 > tiny), g1, np.inf)
-        g2 = np.where(np.isfinite(g2) & (g2 > tiny), g2, np.inf)
-        gj = np.minimum(g1, g2)
-        in_act = np.zeros((rows.size, S), dtype=bool)
-        np.put_along_axis(in_act, a_idx, valid, axis=1)
-        gj[in_act] = np.inf
-        full = na >= K
-        gj[full] = np.inf
-        jj = np.argmin(gj, axis=1)
-        g_join = gj[np.arange(rows.size), jj]
+            gj1 = np.where(aj < 1.0, (lam_r - cj) / (1.0 - aj), np.inf)
+            gj2 = np.where(aj > -1.0, (lam_r + cj) / (1.0 + aj), np.inf)
+        g_join = np.where(ok, np.maximum(np.minimum(gj1, gj2), 0.0), np.inf)
+        tiny = 1e-12 * lam_r[:, None]
         # dropping: β_k + γ w_k = 0
         b = beta_act[rows]
         with np.errstate(divide="ignore", invalid="ignore"):
             gd = -b / w
         gd = np.where(valid & (w != 0) & np.isfinite(gd) & (gd > tiny), gd, np.inf)
         kk = np.argmin(gd, axis=1)
-        g_drop = gd[np.arange(rows.size), kk]
+        g_drop = gd[np.arange(nr), kk]
         g_end = lam_r - alpha
         gamma = np.minimum(np.minimum(g_join, g_drop), g_end)
         # advance
         beta_act[rows] = b + gamma[:, None] * w
-        Cor[rows] = cor - gamma[:, None] * a
+        R[rows] -= gamma[:, None] * u
         lam[rows] = lam_r - gamma
         end = gamma >= g_end
         live[rows[end]] = False
         drop = ~end & (g_drop <= g_join)
         join = ~end & ~drop
         r = rows[join]
+        last_drop[r] = act[r, 0]  # harmless: an active atom
         act[r, nact[r]] = jj[join]
         beta_act[r, nact[r]] = 0.0
         nact[r] += 1
@@ -264,15 +284,12 @@ def _lars_chunk(X, D, alpha, K, max_steps):
         if r.size:
             # move the last active slot into the dropped one
             last = nact[r] - 1
+            last_drop[r] = act[r, k]
             act[r, k] = act[r, last]
             beta_act[r, k] = beta_act[r, last]
             beta_act[r, last] = 0.0
+            act[r, last] = act[r, 0]
             nact[r] = last
-        # a signal whose active set is full and whose next event is a join
-        # (degenerate dictionary) stops where it is
-        stuck = join & (nact[rows] > K)
-        if stuck.any():
-            live[rows[stuck]] = False
     else:
         n_live = int(live.sum())
         if n_live:

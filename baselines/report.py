@@ -1,0 +1,240 @@
+"""
+report.py
+---------
+``pcprep report``: run every comparison harness (denoise, simplify,
+features/holes, saliency; quality and speed), render the pictures, and write
+``reports/index.md`` plus an offline HTML rendering ``reports/index.html``.
+
+A harness that fails is shown as failed in the index, with its error, never
+silently dropped.  ``quick=True`` uses small generated data and pymeshlab's
+sample meshes only (a few minutes on 2 cores); the full run also uses
+``../shared/data/models`` when present.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import re
+import time
+import traceback
+from importlib import import_module
+from pathlib import Path
+
+from .harness import ROOT, environment_info, to_jsonable, write_report
+
+log = logging.getLogger("pcprep")
+
+FAMILIES = ("denoise", "simplify", "features", "saliency")
+TITLES = {
+    "denoise": "Denoising (thesis ch. 4)",
+    "simplify": "Simplification, SDBS (thesis ch. 6)",
+    "features": "Sharp features and hole boundaries (thesis ch. 7)",
+    "saliency": "Saliency (thesis ch. 5)",
+}
+
+
+def _out_dir(out_dir) -> Path:
+    out = Path(out_dir)
+    return out if out.is_absolute() else ROOT / out
+
+
+def _run_step(family: str, speed: bool, quick: bool, seed: int, out_dir: str) -> dict:
+    name = f"speed_{family}" if speed else family
+    t0 = time.perf_counter()
+    try:
+        mod = import_module(f"baselines.bench_{family}")
+        fn = mod.run_speed if speed else mod.run
+        log.info("report: running %s%s", name, " (quick)" if quick else "")
+        fn(quick=quick, seed=seed, out_dir=out_dir)
+        status, error = "ok", None
+    except Exception as exc:  # one harness failing must not take the report down
+        status = "failed"
+        error = f"{type(exc).__name__}: {exc}"
+        log.warning("report: %s failed: %s", name, error)
+        log.debug(traceback.format_exc())
+    return {"name": name, "status": status, "error": error,
+            "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def _demote(md: str, levels: int = 1) -> str:
+    """Push every Markdown heading down ``levels`` levels."""
+    return re.sub(r"^(#{1,5}) ", lambda m: "#" * (len(m.group(1)) + levels) + " ", md,
+                  flags=re.M)
+
+
+def _thesis_section() -> str:
+    try:
+        tables = import_module("baselines.thesis_tables")
+    except ImportError:
+        return ""
+    names = [n for n in dir(tables) if n.isupper() and isinstance(getattr(tables, n), dict)]
+    parts = []
+    for n in names:
+        try:
+            parts.append(tables.table_markdown(n))
+        except Exception as exc:  # a garbled table is reported, not fatal
+            parts.append(f"(table {n} could not be rendered: {exc})\n")
+    if not parts:
+        return ""
+    return ("## The thesis' published figures\n\nThese are the thesis' own numbers on its own "
+            "data (MATLAB implementations, other machines); they are shown for orientation, "
+            "not re-run here.\n\n" + "\n".join(parts))
+
+
+def build(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> Path:
+    """Run every harness and write ``index.md`` / ``index.html`` into ``out_dir``.
+
+    Returns the path of ``index.md``.
+    """
+    from . import figures
+
+    out = _out_dir(out_dir)
+    (out / "img").mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    env = environment_info()
+    steps = []
+    for family in FAMILIES:
+        steps.append(_run_step(family, False, quick, seed, str(out)))
+        steps.append(_run_step(family, True, quick, seed, str(out)))
+    figs, fig_failures = figures.build_all(out / "img", seed=seed)
+    total = time.perf_counter() - t0
+
+    md = ["# pcprep comparison report", ""]
+    md.append(f"Mode: **{'quick' if quick else 'full'}**, seed {seed}, total time "
+              f"{total / 60:.1f} min. Rerunning with the same mode and seed reproduces every "
+              "quality number; times and memory vary with machine load.")
+    md.append("")
+    md.append("## Machine and library versions")
+    md.append("")
+    for k, v in env.items():
+        md.append(f"- {k}: {v}")
+    md.append("")
+    md.append("## Harness runs")
+    md.append("")
+    md.append("| report | status | time (s) |")
+    md.append("|---|---|---|")
+    for s in steps:
+        status = s["status"] if s["status"] == "ok" else f"**FAILED**: {s['error']}"
+        link = f"[{s['name']}]({s['name']}.md)" if s["status"] == "ok" else s["name"]
+        md.append(f"| {link} | {status} | {s['seconds']:.1f} |")
+    md.append("")
+    if figs or fig_failures:
+        md.append("## Pictures")
+        md.append("")
+        for title, path in figs:
+            rel = Path(path).relative_to(out)
+            md.append(f"**{title}**")
+            md.append("")
+            md.append(f"![{title}]({rel.as_posix()})")
+            md.append("")
+        extra = sorted((out / "img").glob("saliency_*.png"))
+        for path in extra:
+            md.append(f"![saliency heat map]({path.relative_to(out).as_posix()})")
+            md.append("")
+        for fail in fig_failures:
+            md.append(f"- picture **FAILED**: {fail}")
+        md.append("")
+    for family in FAMILIES:
+        md.append(f"## {TITLES[family]}")
+        md.append("")
+        for name in (family, f"speed_{family}"):
+            path = out / f"{name}.md"
+            step = next(s for s in steps if s["name"] == name)
+            if step["status"] != "ok":
+                md.append(f"**{name} FAILED**: {step['error']}")
+                md.append("")
+            elif path.exists():
+                md.append(_demote(path.read_text(encoding="utf-8"), 2))
+                md.append("")
+    thesis = _thesis_section()
+    if thesis:
+        md.append(thesis)
+    text = "\n".join(md) + "\n"
+    data = {"mode": "quick" if quick else "full", "seed": seed, "environment": env,
+            "steps": steps, "figures": [str(p) for _, p in figs],
+            "figure_failures": fig_failures, "total_seconds": total}
+    md_path, _ = write_report("index", text, to_jsonable(data), out_dir=str(out))
+    (out / "index.html").write_text(markdown_to_html(text, title="pcprep comparison report"),
+                                    encoding="utf-8")
+    log.info("report: wrote %s and index.html in %.1f min", md_path, total / 60)
+    return md_path
+
+
+# ---------------------------------------------------------------------------------------
+# a small Markdown → HTML renderer for what the reports contain (headings, paragraphs,
+# lists, tables, images, links, bold, code); no extra dependency, opens offline
+# ---------------------------------------------------------------------------------------
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
+color:#222}table{border-collapse:collapse;margin:1em 0;font-size:13px}td,th{border:1px solid
+#ccc;padding:3px 7px;text-align:right}th{background:#f3f3f3}td:first-child,th:first-child{
+text-align:left}img{max-width:100%}code{background:#f3f3f3;padding:0 3px}h1,h2,h3{margin-top:
+1.4em}"""
+
+
+def _inline(text: str) -> str:
+    t = html.escape(text, quote=False)
+    t = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img alt="\1" src="\2">', t)
+    t = re.sub(r"\[([^\]]+)\]\(([^)]+)\)", r'<a href="\2">\1</a>', t)
+    t = re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
+    return t
+
+
+def markdown_to_html(md: str, title: str = "report") -> str:
+    """Render the subset of Markdown the reports use as a standalone HTML page."""
+    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+           f"</title><style>{_CSS}</style></head><body>"]
+    lines = md.splitlines()
+    i = 0
+    para: list[str] = []
+
+    def flush():
+        if para:
+            out.append("<p>" + " ".join(_inline(p) for p in para) + "</p>")
+            para.clear()
+
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("```"):
+            flush()
+            j = i + 1
+            while j < len(lines) and not lines[j].startswith("```"):
+                j += 1
+            out.append("<pre><code>" + html.escape("\n".join(lines[i + 1:j])) + "</code></pre>")
+            i = j + 1
+            continue
+        m = re.match(r"^(#{1,6}) (.*)", line)
+        if m:
+            flush()
+            n = len(m.group(1))
+            out.append(f"<h{n}>{_inline(m.group(2))}</h{n}>")
+        elif line.startswith("|") and i + 1 < len(lines) and re.match(r"^\|[\s:|-]+\|$",
+                                                                        lines[i + 1]):
+            flush()
+            head = [c.strip() for c in line.strip("|").split("|")]
+            out.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>")
+            i += 2
+            while i < len(lines) and lines[i].startswith("|"):
+                cells = [c.strip() for c in lines[i].strip().strip("|").split("|")]
+                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
+                i += 1
+            out.append("</table>")
+            continue
+        elif re.match(r"^\s*[-*] ", line):
+            flush()
+            out.append("<ul>")
+            while i < len(lines) and re.match(r"^\s*[-*] ", lines[i]):
+                out.append("<li>" + _inline(re.sub(r"^\s*[-*] ", "", lines[i])) + "</li>")
+                i += 1
+            out.append("</ul>")
+            continue
+        elif not line.strip():
+            flush()
+        else:
+            para.append(line)
+        i += 1
+    flush()
+    out.append("</body></html>")
+    return "\n".join(out)

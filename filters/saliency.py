@@ -1,0 +1,354 @@
+"""
+saliency.py
+-----------
+Point-cloud saliency by local sparse coding and the MDL principle, thesis
+chapter 5, eqs (5.2)-(5.7).
+
+Per point p_i (neighbourhood N_g(p_i) = points within radius r):
+
+1. descriptor F = (n_x, n_y, n_z, K, d): oriented unit normal, Gaussian
+   curvature K of a local quadric fit (made dimensionless as K r²), and the
+   global distinctness d (5.4);
+2. neighbourhood descriptor F̄_i = mean of F over N_g(p_i) (5.2);
+3. surrounding neighbourhoods (§5.3.2.2): N_g(p_i) is projected on its PCA
+   tangent plane, rays at a fixed angular step 2π/m are cast to the 1-ring
+   (length r), and the neighbour nearest each ray end lends its F̄ as an atom;
+4. Lasso coding of F̄_i against the m atoms (5.6), solved for all points at
+   once by :func:`filters.lasso_batched.lasso_batched`;
+5. S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) per neighbourhood, accumulated (mean)
+   over the overlapping neighbourhoods that contain each point.
+
+Everything is vectorised over points and chunked; one k-NN query serves every
+step (plus the one of the MST normal orientation when normals are not given).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._params import Param, resolve_params
+from ._validation import PointCloudError, as_normals, as_points, check_spread
+from .lasso_batched import lasso_batched
+from .neighbors import average_spacing, build_tree, centered, orient_normals_mst
+
+log = logging.getLogger("pcprep")
+
+#: points per chunk of the neighbour passes
+CHUNK = 16_384
+#: fewest points the filter accepts (a quadric needs 6 neighbours)
+MIN_POINTS = 10
+
+PARAMS = (
+    Param("radius", float, 3.0, "r: radius of the neighbourhoods N_g and length of the "
+          "rays to the 1-ring (§5.3.2.2)", low=1.0, high=50.0, unit="h"),
+    Param("n_rays", int, 8, "m: rays cast in the tangent plane, i.e. surrounding "
+          "neighbourhoods (atoms) per point", low=3, high=32, unit="count"),
+    Param("alpha", float, 0.9, "λ: weight of ‖α‖₁ in the Lasso (5.6), thesis value 0.9",
+          low=0.0, high=100.0, closed="right"),
+    Param("k_max", int, 48, "cap on the neighbours kept within the radius", low=8,
+          high=512, unit="count", advanced=True),
+    Param("seed", int, None, "accepted for a uniform API; the filter uses no randomness",
+          low=0, optional=True, advanced=True),
+)
+
+
+@dataclass(frozen=True)
+class SaliencyResult:
+    """Result of :func:`saliency_sparse_mdl`.
+
+    Attributes
+    ----------
+    saliency : (n,) float
+        Point saliency in [0, 1] (accumulated S_T divided by its maximum).
+    neighbourhood_saliency : (n,) float
+        S_T(N_g(p_i)) of eq. (5.7) before accumulation, in [0, 1].
+    sparsity : (n,) int
+        ‖α‖₀ of each neighbourhood's code (S_M).
+    residual : (n,) float
+        Reconstruction residual (S_I; see Notes for the norm).
+    descriptors : (n, 5) float
+        Neighbourhood descriptors F̄_i = (n̄, K̄ r², d̄).
+    normals : (n, 3) float
+        The oriented unit normals used in the descriptor.
+    curvature : (n,) float
+        Gaussian curvature K of the quadric fits, in 1/length² of the input.
+    atoms : (n, n_rays) int
+        Index of the point whose neighbourhood is each atom.
+    h : float
+        Average spacing of the input.
+    radius : float
+        Neighbourhood radius r in input units.
+    n_unconverged : int
+        Lasso problems that hit the iteration cap.
+    """
+
+    saliency: np.ndarray
+    neighbourhood_saliency: np.ndarray
+    sparsity: np.ndarray
+    residual: np.ndarray
+    descriptors: np.ndarray
+    normals: np.ndarray
+    curvature: np.ndarray
+    atoms: np.ndarray
+    h: float
+    radius: float
+    n_unconverged: int
+
+
+@dataclass(frozen=True)
+class _Hood:
+    """Capped radius neighbourhoods: ``idx[i, :count[i]]`` lie within r (sorted by
+    distance, the point itself first)."""
+
+    idx: np.ndarray  # (n, k) int32
+    count: np.ndarray  # (n,) int
+
+    def valid(self, s: int, e: int) -> np.ndarray:
+        return np.arange(self.idx.shape[1])[None, :] < self.count[s:e, None]
+
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        """Mean of ``values`` (n, ...) over every neighbourhood."""
+        out = np.zeros((len(self.idx),) + values.shape[1:])
+        for s in range(0, len(self.idx), CHUNK):
+            e = min(len(self.idx), s + CHUNK)
+            w = self.valid(s, e).astype(np.float64)
+            g = values[self.idx[s:e]]
+            out[s:e] = np.einsum("ck,ck...->c...", w, g) / self.count[s:e].reshape(
+                (-1,) + (1,) * (values.ndim - 1))
+        return out
+
+
+def neighbourhoods(points: np.ndarray, r: float, k_max: int, tree=None) -> _Hood:
+    """Radius-r neighbourhoods capped at ``k_max`` points, from one chunked k-NN
+    query (int32 indices keep a 1M-point cloud at ~200 MB)."""
+    tree = build_tree(points) if tree is None else tree
+    n = len(points)
+    k = min(k_max, n)
+    idx = np.zeros((n, k), dtype=np.int32)
+    count = np.zeros(n, dtype=np.int64)
+    for s in range(0, n, 4 * CHUNK):
+        e = min(n, s + 4 * CHUNK)
+        d, j = tree.query(points[s:e], k=k, workers=-1)
+        if k == 1:
+            d, j = d[:, None], j[:, None]
+        idx[s:e] = j
+        count[s:e] = np.maximum((d <= r).sum(axis=1), 1)
+    return _Hood(idx, count)
+
+
+def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA frames and quadric curvatures of every neighbourhood.
+
+    Returns
+    -------
+    frames : (n, 3, 3) float
+        Columns e1, e2 (tangent, largest eigenvalues first) and the PCA normal.
+    gaussian : (n,) float
+        K = (4ac − b²)/(1 + d² + e²)² of the least-squares quadric
+        w = a u² + b uv + c v² + d u + e v + f in the frame (Monge form at p_i).
+    mean_abs : (n,) float
+        √(k1² + k2²) of the same fit (used by the curvature-magnitude baseline).
+    """
+    n = len(points)
+    frames = np.zeros((n, 3, 3))
+    gauss = np.zeros(n)
+    total = np.zeros(n)
+    ridge = 1e-9
+    for s in range(0, n, CHUNK):
+        e = min(n, s + CHUNK)
+        w = hood.valid(s, e).astype(np.float64)
+        cnt = hood.count[s:e].astype(np.float64)
+        nb = points[hood.idx[s:e]]  # (c, k, 3)
+        mean = np.einsum("ck,ckd->cd", w, nb) / cnt[:, None]
+        diff = (nb - mean[:, None, :]) * w[:, :, None]
+        cov = np.einsum("cki,ckj->cij", diff, diff)
+        _, vec = np.linalg.eigh(cov)
+        fr = vec[:, :, ::-1]  # e1, e2, normal
+        frames[s:e] = fr
+        loc = np.einsum("ckd,cdj->ckj", nb - points[s:e, None, :], fr) / r
+        u, v, z = loc[..., 0], loc[..., 1], loc[..., 2]
+        A = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=-1) * w[..., None]
+        M = np.einsum("cki,ckj->cij", A, A)
+        M += ridge * np.eye(6) * np.maximum(np.trace(M, axis1=1, axis2=2), 1.0)[:, None, None]
+        q = np.linalg.solve(M, np.einsum("cki,ck->ci", A, z * w)[:, :, None])[:, :, 0]
+        a, b, c, du, dv = q[:, 0], q[:, 1], q[:, 2], q[:, 3], q[:, 4]
+        g2 = 1.0 + du * du + dv * dv
+        gauss[s:e] = (4.0 * a * c - b * b) / (g2 * g2) / (r * r)
+        # principal curvatures of the Hessian (small-slope approximation)
+        total[s:e] = 2.0 * np.sqrt(a * a + c * c + 0.5 * b * b) / r
+    return frames, gauss, total
+
+
+def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
+               n_rays: int) -> np.ndarray:
+    """Index of the neighbour nearest each ray end point, in the tangent plane."""
+    n = len(points)
+    th = 2.0 * np.pi * np.arange(n_rays) / n_rays
+    ends = r * np.stack([np.cos(th), np.sin(th)], axis=1)  # (m, 2)
+    atoms = np.zeros((n, n_rays), dtype=np.int64)
+    for s in range(0, n, CHUNK):
+        e = min(n, s + CHUNK)
+        nb = points[hood.idx[s:e]] - points[s:e, None, :]
+        uv = np.einsum("ckd,cdj->ckj", nb, frames[s:e, :, :2])  # (c, k, 2)
+        d2 = ((uv[:, None, :, :] - ends[None, :, None, :]) ** 2).sum(axis=-1)  # (c, m, k)
+        d2[~np.broadcast_to(hood.valid(s, e)[:, None, :], d2.shape)] = np.inf
+        j = d2.argmin(axis=2)
+        atoms[s:e] = np.take_along_axis(hood.idx[s:e], j, axis=1)
+    return atoms
+
+
+def _residual_norm(res: np.ndarray) -> np.ndarray:
+    """ℓ1 norm over the descriptor's groups: the normal block counts by its
+    Euclidean length (rotation invariant), K and d by their absolute values."""
+    return np.linalg.norm(res[:, :3], axis=1) + np.abs(res[:, 3]) + np.abs(res[:, 4])
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    top = float(v.max())
+    return v / top if top > 0 else np.zeros_like(v, dtype=np.float64)
+
+
+def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
+                        alpha: float = 0.9, k_max: int = 48, seed: int | None = None
+                        ) -> SaliencyResult:
+    """Saliency of every point by local sparse coding and MDL (thesis ch.5).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The cloud (n ≥ 10).
+    normals : (n, 3) float, optional
+        Normals; their sign matters (see Notes).  Estimated by PCA and oriented
+        by MST propagation when None.
+    radius : float, default=3.0
+        r: neighbourhood radius and ray length, in units of h (mean distance to
+        the 6 nearest neighbours).
+    n_rays : int, default=8
+        m: rays in the tangent plane = atoms per dictionary.
+    alpha : float, default=0.9
+        λ of eq. (5.6), ‖x − Dα‖₂² + λ‖α‖₁ (the thesis value).
+    k_max : int, default=48
+        Cap on the neighbours within the radius (the nearest are kept).
+    seed : int or None
+        Accepted for a uniform API; the filter is deterministic.
+
+    Returns
+    -------
+    SaliencyResult
+        ``saliency`` is in [0, 1]; 1 at the most salient point.
+
+    Raises
+    ------
+    PointCloudError
+        Empty cloud, NaN/Inf, fewer than 10 points, all points coincident or
+        collinear, normals of the wrong shape or zero length.
+    InvalidParameterError
+        A parameter out of range (names the parameter).
+
+    Notes
+    -----
+    Descriptor (§5.3.2.1): F = (n, K r², d).  K is the Gaussian curvature of a
+    least-squares quadric in the PCA frame of N_g(p_i) (all neighbourhoods solve
+    their 6×6 normal equations as one stacked ``np.linalg.solve``).  K is made
+    dimensionless by r² so that the filter is scale invariant (the thesis uses
+    raw K, whose size depends on the model's units).  The thesis defines d_i
+    (5.4) from the neighbourhood mean F̄_i while making d a component of F; we
+    resolve the circularity as: F̄⁴_i = mean of (n, K r²) over N_g (5.2), F̄_g =
+    mean of F̄⁴ over the cloud (5.3), d_i = ‖F̄⁴_i − F̄_g‖ (5.4), and the fifth
+    component of F̄_i is the mean of d over N_g.
+
+    Normals: when given they are used as they are; otherwise PCA normals of
+    N_g oriented by MST propagation (Hoppe 1992), rooted at the highest point
+    with its normal toward +z, which is outward on closed surfaces.  Flipping
+    every normal of the cloud leaves the saliency unchanged (all inner products
+    and norms of the coding are invariant to it).
+
+    Surroundings (§5.3.2.2): the ray ends are r·(cos θ_k, sin θ_k) in the PCA
+    tangent plane; the atom is the neighbour of N_g(p_i) whose projection is
+    nearest, as in the thesis (not the nearest point of the whole cloud).
+
+    Coding (5.6): the thesis writes ‖x − Dα‖₂² + λ‖α‖₁ (no ½); we solve
+    ½‖x − Dα‖² + (λ/2)‖α‖₁, the same minimiser.  The thesis' LARS is replaced
+    by batched coordinate descent with an exact active-set step, which reaches
+    the same Lasso solution (tests compare with scikit-learn's LassoLars).
+
+    Saliency (5.7): S_M = ‖α‖₀ (|α_j| > 1e-10), S_I = residual "ℓ1" norm; the
+    normal block enters S_I with its Euclidean length instead of |r_x|+|r_y|+|r_z|
+    so that S_I, like the rest of the method, is invariant to rotations of the
+    cloud (the plain ℓ1 of the normal components is not).  N(·) divides by the
+    maximum (not min-max), so that a uniform measure stays uniform (a plane is
+    not given artificial contrast).  Operator ∘ = product, the thesis' best.
+    Accumulation: point i gets the mean of S_T over the neighbourhoods that
+    contain it; with symmetric radius neighbourhoods that is the mean over its
+    own neighbourhood (exact unless the ``k_max`` cap bites).
+
+    Radius: a fixed multiple of h instead of the adaptive radius of Mitra &
+    Nguyen (2003) used in the thesis; h already adapts to the sampling density
+    of the cloud as a whole.
+
+    Thesis timing for reference: 15.5K points in 81.7 s (MATLAB).
+
+    References
+    ----------
+    E. A. Leal Narváez, *Sparse Representation-Based Algorithms for
+    Pre-Processing Point Clouds*, 2020, ch. 5.
+
+    Examples
+    --------
+    >>> g = np.random.default_rng(0)
+    >>> xy = g.uniform(-1, 1, (3000, 2))
+    >>> z = 0.3 * np.exp(-(xy ** 2).sum(1) / 0.05)
+    >>> res = saliency_sparse_mdl(np.column_stack([xy, z]))
+    >>> bool(res.saliency[np.hypot(*xy.T) < 0.2].mean() > res.saliency[np.hypot(*xy.T) > 0.7].mean())
+    True
+    """
+    func = "saliency_sparse_mdl"
+    p = resolve_params(PARAMS, dict(radius=radius, n_rays=n_rays, alpha=alpha, k_max=k_max,
+                                    seed=seed), func)
+    pts = as_points(points, func=func, min_points=MIN_POINTS)
+    n = len(pts)
+    nrm = None if normals is None else as_normals(normals, n, func=func)
+    check_spread(pts, func=func)
+    pts, _ = centered(pts)
+
+    tree = build_tree(pts)
+    h = average_spacing(pts, tree=tree)
+    r = p["radius"] * h
+    hood = neighbourhoods(pts, r, p["k_max"], tree)
+    if np.median(hood.count) < 6:
+        raise PointCloudError(f"{func}: neighbourhoods of radius {p['radius']} h hold fewer "
+                              "than 6 points (median); increase radius")
+    log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, r,
+             int(np.median(hood.count)))
+
+    frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
+    if nrm is None:
+        nrm = orient_normals_mst(pts, frames[:, :, 2], k=min(10, n - 1), tree=tree)
+
+    # descriptors (5.2)-(5.4)
+    F4 = np.column_stack([nrm, gauss * r * r])
+    Fbar4 = hood.mean(F4)
+    d = np.linalg.norm(Fbar4 - Fbar4.mean(axis=0), axis=1)
+    Fbar = np.column_stack([Fbar4, hood.mean(d)])
+
+    # surroundings and coding (5.6)
+    atoms = _ray_atoms(pts, hood, frames, r, p["n_rays"])
+    sparsity = np.zeros(n, dtype=np.int64)
+    resid = np.zeros(n)
+    n_bad = 0
+    for s in range(0, n, 4 * CHUNK):
+        e = min(n, s + 4 * CHUNK)
+        D = Fbar[atoms[s:e]].transpose(0, 2, 1)  # (c, 5, m)
+        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"])
+        sparsity[s:e] = (np.abs(sol.coef) > 1e-10).sum(axis=1)
+        resid[s:e] = _residual_norm(sol.residual)
+        n_bad += int((~sol.converged).sum())
+
+    # MDL saliency (5.7) and accumulation over overlapping neighbourhoods
+    s_t = _normalise(sparsity.astype(np.float64)) * _normalise(resid)
+    sal = _normalise(hood.mean(s_t))
+    return SaliencyResult(sal, s_t, sparsity, resid, Fbar, nrm, gauss, atoms, h, r, n_bad)
