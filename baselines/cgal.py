@@ -98,11 +98,13 @@ def _check_real(value, name: str, func: str, low: float, high: float = math.inf,
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(f"{func}: {name} must be a number, got {value!r}") from exc
+        raise InvalidParameterError(
+            f"{func}: {name} must be a number, got {value!r}") from exc
     bad_low = v <= low if low_open else v < low
     if not math.isfinite(v) or bad_low or v > high:
         lo = "(" if low_open else "["
-        raise InvalidParameterError(f"{func}: {name} must be in {lo}{low}, {high}], got {value!r}")
+        raise InvalidParameterError(
+            f"{func}: {name} must be in {lo}{low}, {high}], got {value!r}")
     return v
 
 
@@ -185,7 +187,8 @@ def jet_smooth(points, k: int = 24, degree_fitting: int = 2, degree_monge: int =
     df = _check_int(degree_fitting, "degree_fitting", func, 1)
     dm = _check_int(degree_monge, "degree_monge", func, 1)
     if dm > df:
-        raise InvalidParameterError(f"{func}: degree_monge ({dm}) must be <= degree_fitting ({df})")
+        raise InvalidParameterError(
+            f"{func}: degree_monge ({dm}) must be <= degree_fitting ({df})")
     radius = _check_real(neighbor_radius, "neighbor_radius", func, 0.0, low_open=False)
     Xc, c = centered(X)
     ps = to_point_set(Xc)
@@ -265,14 +268,15 @@ def wlop(points, percentage: float, neighbor_radius: float = -1.0, iterations: i
     iterations = _check_int(iterations, "iterations", func, 1)
     r = float(neighbor_radius)
     if not math.isfinite(r):
-        raise InvalidParameterError(f"{func}: neighbor_radius must be finite, got {neighbor_radius!r}")
+        raise InvalidParameterError(
+            f"{func}: neighbor_radius must be finite, got {neighbor_radius!r}")
     from CGAL.CGAL_Point_set_3 import Point_set_3
 
     Xc, c = centered(X)
     ps = to_point_set(Xc, ids=False)
     out = Point_set_3()
-    _psp().wlop_simplify_and_regularize_point_set(ps, out, pct, r if r > 0 else -1.0,
-                                                  iterations, bool(require_uniform_sampling))
+    _psp().wlop_simplify_and_regularize_point_set(
+        ps, out, pct, r if r > 0 else -1.0, iterations, bool(require_uniform_sampling))
     return point_set_points(out) + c
 
 
@@ -288,8 +292,8 @@ def random_simplify(points, fraction: float, seed: int | None = 0) -> np.ndarray
     fraction = _check_real(fraction, "fraction", func, 0.0, 1.0)
     if seed is not None and (isinstance(seed, (bool, np.bool_))
                              or not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise InvalidParameterError(f"{func}: seed must be a non-negative integer or None, "
-                                    f"got {seed!r}")
+        raise InvalidParameterError(
+            f"{func}: seed must be a non-negative integer or None, got {seed!r}")
     m = max(1, int(round(fraction * len(X))))
     rng = np.random.default_rng(seed)
     return np.sort(rng.choice(len(X), size=m, replace=False)).astype(np.int64)
@@ -343,12 +347,13 @@ def grid_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_iter: 
             hi = mid
     got = run(math.exp(best[1]))
     if abs(got - count) > rtol * count:
-        log.info("%s: kept %d points for a target of %d (tolerance %.3g)", func, got, count, rtol)
+        log.info("%s: kept %d points for a target of %d (tolerance %.3g)",
+                 func, got, count, rtol)
     return _kept(ps, len(X), func)
 
 
-def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_iter: int = 40
-                             ) -> np.ndarray:
+def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
+                             max_iter: int = 40) -> np.ndarray:
     """:func:`hierarchy_simplify` tuned to keep about ``count`` points.
 
     The cluster ``size`` is an integer, so it only brackets the target (e.g.
@@ -413,7 +418,8 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_i
                 vhi = mid
     got = run(*best[1])
     if abs(got - count) > rtol * count:
-        log.info("%s: kept %d points for a target of %d (tolerance %.3g)", func, got, count, rtol)
+        log.info("%s: kept %d points for a target of %d (tolerance %.3g)",
+                 func, got, count, rtol)
     return _kept(ps, len(X), func)
 
 

@@ -556,7 +556,8 @@ def make_shape(name: str, n: int = 20000, seed: int | None = 0, uniform: bool = 
     rng = np.random.default_rng(seed)
     density = None
     if not uniform:
-        lo, hi = _x_range(patches)
+        hi = _x_half_extent(name)
+        lo = -hi
 
         def density(p):
             return 1.0 + 4.0 * np.clip((p[:, 0] - lo) / (hi - lo), 0.0, 1.0)
@@ -588,11 +589,13 @@ def make_shape(name: str, n: int = 20000, seed: int | None = 0, uniform: bool = 
     return Sample(pts, nrm, sharp, rim, h, name, None, extra)
 
 
-def _x_range(patches):
-    """x extent of the patches (from a small seeded probe sample)."""
-    p, _ = _sample_patches(patches, 4000, np.random.default_rng(12345))
-    lo, hi = float(p[:, 0].min()), float(p[:, 0].max())
-    return lo, hi if hi > lo else lo + 1.0
+def _x_half_extent(name):
+    """Half extent along canonical x (all shapes are symmetric about x = 0)."""
+    if name == "cube":
+        return 0.5
+    if name == "star":
+        return float(np.abs(_star_polygon()[:, 0]).max())
+    return 1.0
 
 
 # ---------------------------------------------------------------------------
@@ -888,19 +891,30 @@ def _corner_normals(V, F, cr, unit, smooth_angle_deg):
     return out.reshape(m, 3, 3)
 
 
-def _segment_distance(points, a, b, step):
-    """Distance from points to a set of segments, by densifying the segments at
-    ``step`` and querying a KD-tree (error ≤ step²/(8 d) at distance d, + step/2
-    at the worst for points nearly on the segment)."""
+def _segment_distance(points, a, b, step, k=8):
+    """Distance from points to a set of segments.
+
+    The segments are densified at ``step`` and put in a KD-tree; the segments of
+    the ``k`` nearest dense samples are the candidates, and the exact point-to-
+    segment distance is taken over them (the result is exact whenever the nearest
+    segment is among the candidates, and never worse than the dense-sample
+    distance, whose error is below step/2)."""
     if len(a) == 0:
         return np.full(len(points), np.inf)
-    length = np.linalg.norm(b - a, axis=1)
+    ab = b - a
+    length = np.linalg.norm(ab, axis=1)
     cnt = np.maximum(1, np.ceil(length / step).astype(np.int64)) + 1
     seg = np.repeat(np.arange(len(a)), cnt)
     t = (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)) / np.repeat(cnt - 1, cnt)
-    dense = a[seg] + t[:, None] * (b - a)[seg]
-    d, _ = cKDTree(dense).query(points, k=1, workers=-1)
-    return d
+    dense = a[seg] + t[:, None] * ab[seg]
+    k = min(k, len(dense))
+    _, nn = cKDTree(dense).query(points, k=k, workers=-1)
+    cand = seg[nn.reshape(len(points), k)]  # (n, k)
+    ll = np.maximum(length[cand] ** 2, 1e-300)
+    ap = points[:, None, :] - a[cand]
+    u = np.clip(np.einsum("nkd,nkd->nk", ap, ab[cand]) / ll, 0.0, 1.0)
+    d = ap - u[..., None] * ab[cand]
+    return np.sqrt((d * d).sum(axis=2).min(axis=1))
 
 
 def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,

@@ -12,8 +12,10 @@ Typical use in a bench module::
     if out.ok:
         smoothed, _ = out.value
     yard = harness.knn_pass_seconds(points)                     # float seconds
-    table = harness.markdown_table(["n", "ours", "RIMLS"], rows, best={1: "min", 2: "min"})
-    harness.write_report("denoise_speed", table, {"rows": rows, "env": harness.environment_info()})
+    table = harness.markdown_table(["n", "ours", "RIMLS"], rows,
+                                   best={1: "min", 2: "min"})
+    harness.write_report("denoise_speed", table,
+                         {"rows": rows, "env": harness.environment_info()})
 
 The function given to :func:`run_isolated` must be importable by the child
 (defined at module level of an importable module, or in the ``__main__``
@@ -169,7 +171,8 @@ def _signal_name(signum: int) -> str:
         return f"SIG{signum}"
 
 
-def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT, **kwargs) -> Outcome:
+def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT,
+                 **kwargs) -> Outcome:
     """Call ``fn(*args, **kwargs)`` in a fresh Python process and return its Outcome.
 
     Parameters
@@ -197,6 +200,7 @@ def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT, **kwargs
     The child's stdout/stderr go to the parent's.  Child processes started by
     ``fn`` itself are not killed on timeout.
     """
+    name = getattr(fn, "__name__", repr(fn))
     workdir = tempfile.mkdtemp(prefix="pcprep_iso_")
     try:
         call_path = os.path.join(workdir, "call.pkl")
@@ -205,7 +209,7 @@ def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT, **kwargs
         ctx = mp.get_context("spawn")
         # not a daemon: the function may itself start processes (joblib, multiprocessing)
         proc = ctx.Process(target=_child_main, args=(workdir,), daemon=False,
-                           name=f"pcprep-iso-{getattr(fn, '__name__', 'fn')}")
+                           name=f"pcprep-iso-{name}")
         proc.start()
         try:
             proc.join(timeout)
@@ -216,13 +220,13 @@ def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT, **kwargs
         if proc.is_alive():
             proc.kill()
             proc.join(10.0)
-            log.info("run_isolated: %s timed out after %gs", getattr(fn, "__name__", fn), timeout)
+            log.info("run_isolated: %s timed out after %gs", name, timeout)
             return Outcome(False, None, f"timeout after {timeout:g}s", math.nan, math.nan)
         code = proc.exitcode
         res_path = os.path.join(workdir, "result.pkl")
         if code is not None and code < 0:
             err = f"crashed: signal {-code} ({_signal_name(-code)})"
-            log.info("run_isolated: %s %s", getattr(fn, "__name__", fn), err)
+            log.info("run_isolated: %s %s", name, err)
             return Outcome(False, None, err, math.nan, math.nan)
         if not os.path.exists(res_path):
             return Outcome(False, None, f"exited with code {code} without a result",
@@ -230,12 +234,12 @@ def run_isolated(fn: Callable, *args, timeout: float = DEFAULT_TIMEOUT, **kwargs
         try:
             with open(res_path, "rb") as f:
                 status, value, tb, dt, peak, start = pickle.load(f)
-        except Exception as exc:  # noqa: BLE001 - e.g. the value's class is not importable here
-            return Outcome(False, None, f"{type(exc).__name__} while reading the result: {exc}",
-                           math.nan, math.nan)
+        except Exception as exc:  # noqa: BLE001 - e.g. class not importable
+            err = f"{type(exc).__name__} while reading the result: {exc}"
+            return Outcome(False, None, err, math.nan, math.nan)
         if status == "ok":
             return Outcome(True, value, None, float(dt), float(peak), float(start))
-        log.info("run_isolated: %s failed: %s\n%s", getattr(fn, "__name__", fn), value, tb)
+        log.info("run_isolated: %s failed: %s\n%s", name, value, tb)
         return Outcome(False, None, str(value), float(dt), float(peak), float(start))
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
@@ -305,7 +309,8 @@ _FAIL_WORDS = ("crash", "fail", "timeout", "error", "n/a", "skipped")
 
 
 def _is_number(x) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+    return (isinstance(x, (int, float, np.integer, np.floating))
+            and not isinstance(x, (bool, np.bool_)))
 
 
 def _cell_value(cell):
@@ -344,8 +349,8 @@ def _format_cell(cell, fmt: str) -> str:
     return _md_escape(cell)
 
 
-def markdown_table(header: list[str], rows: list[list], best: dict[int, str] | None = None,
-                   fmt: str = "{:.3g}") -> str:
+def markdown_table(header: list[str], rows: list[list],
+                   best: dict[int, str] | None = None, fmt: str = "{:.3g}") -> str:
     """GitHub Markdown table with the best value of each row in bold.
 
     Parameters
@@ -373,14 +378,17 @@ def markdown_table(header: list[str], rows: list[list], best: dict[int, str] | N
     best = dict(best or {})
     for col, how in best.items():
         if how not in ("min", "max"):
-            raise ValueError(f"markdown_table: best[{col}] must be 'min' or 'max', got {how!r}")
+            raise ValueError(
+                f"markdown_table: best[{col}] must be 'min' or 'max', got {how!r}")
         if not 0 <= col < len(header):
-            raise ValueError(f"markdown_table: best column {col} outside 0..{len(header) - 1}")
+            raise ValueError(
+                f"markdown_table: best column {col} outside 0..{len(header) - 1}")
     lines = ["| " + " | ".join(_md_escape(h, 200) for h in header) + " |",
              "|" + "|".join("---" for _ in header) + "|"]
     for r, row in enumerate(rows):
         if len(row) != len(header):
-            raise ValueError(f"markdown_table: row {r} has {len(row)} cells, header {len(header)}")
+            raise ValueError(
+                f"markdown_table: row {r} has {len(row)} cells, header {len(header)}")
         texts = [_format_cell(c, fmt) for c in row]
         for how in ("min", "max"):
             cols = [c for c, h in best.items() if h == how]
@@ -405,7 +413,8 @@ def to_jsonable(obj):
         d["value"] = None if isinstance(v, (np.ndarray, tuple)) else to_jsonable(v)
         return to_jsonable(d)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.name: to_jsonable(getattr(obj, f.name))
+                for f in dataclasses.fields(obj)}
     if isinstance(obj, dict):
         return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple, set, frozenset)):

@@ -41,7 +41,8 @@ def _check_positive(value, name: str, func: str) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(f"{func}: {name} must be a number, got {value!r}") from exc
+        raise InvalidParameterError(
+            f"{func}: {name} must be a number, got {value!r}") from exc
     if not np.isfinite(v) or v <= 0:
         raise InvalidParameterError(f"{func}: {name} must be > 0, got {value!r}")
     return v
@@ -61,7 +62,8 @@ def _mls(kind: str, points, normals, params: dict) -> tuple[np.ndarray, np.ndarr
     X = as_points(points, func=func, min_points=4)
     N = as_normals(normals, len(X), func=func)
     if not (np.linalg.norm(N, axis=1) > 0).all():
-        raise InvalidParameterError(f"{func}: normals must be non-zero (oriented normals needed)")
+        raise InvalidParameterError(
+            f"{func}: normals must be non-zero (oriented normals needed)")
     Xc, c = centered(X)
     pymeshlab, ms = _meshset()
     m = pymeshlab.Mesh(vertex_matrix=Xc, v_normals_matrix=N)
@@ -73,10 +75,12 @@ def _mls(kind: str, points, normals, params: dict) -> tuple[np.ndarray, np.ndarr
     Y = np.array(ms.mesh(1).vertex_matrix(), dtype=np.float64)
     NY = np.array(ms.mesh(1).vertex_normal_matrix(), dtype=np.float64)
     if Y.shape != X.shape:
-        raise RuntimeError(f"{func}: MeshLab returned {Y.shape[0]} points for {X.shape[0]}")
+        raise RuntimeError(
+            f"{func}: MeshLab returned {Y.shape[0]} points for {X.shape[0]}")
     bad = ~np.isfinite(Y).all(axis=1) | ~np.isfinite(NY).all(axis=1)
     if bad.any():
-        log.info("%s: %d point(s) without an MLS fit kept unchanged", func, int(bad.sum()))
+        log.info("%s: %d point(s) without an MLS fit kept unchanged",
+                 func, int(bad.sum()))
         Y[bad] = Xc[bad]
         NY[bad] = N[bad]
     lens = np.linalg.norm(NY, axis=1, keepdims=True)
@@ -183,8 +187,8 @@ def _indexed_meshset(points, func: str, min_points: int = 1):
     X = as_points(points, func=func, min_points=min_points)
     Xc, _ = centered(X)
     pymeshlab, ms = _meshset()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Xc,
-                               v_scalar_array=np.arange(len(X), dtype=np.float64)), "input")
+    ids = np.arange(len(X), dtype=np.float64)
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Xc, v_scalar_array=ids), "input")
     return pymeshlab, ms, len(X)
 
 
@@ -293,11 +297,13 @@ def pca_normals_meshlab(points, k: int = 10, smoothiter: int = 0) -> np.ndarray:
     (inward on a sphere in tests).  Returns (n, 3) unit normals, input order."""
     X = as_points(points, func="pca_normals_meshlab", min_points=3)
     if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or k < 3:
-        raise InvalidParameterError(f"pca_normals_meshlab: k must be an integer >= 3, got {k!r}")
+        raise InvalidParameterError(
+            f"pca_normals_meshlab: k must be an integer >= 3, got {k!r}")
     Xc, _ = centered(X)
     pymeshlab, ms = _meshset()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Xc), "cloud")
-    ms.compute_normal_for_point_clouds(k=int(k), smoothiter=int(smoothiter), flipflag=False)
+    ms.compute_normal_for_point_clouds(k=int(k), smoothiter=int(smoothiter),
+                                       flipflag=False)
     N = np.array(ms.current_mesh().vertex_normal_matrix(), dtype=np.float64)
     lens = np.linalg.norm(N, axis=1, keepdims=True)
     return np.divide(N, lens, out=np.zeros_like(N), where=lens > 0)

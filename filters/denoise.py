@@ -37,14 +37,16 @@ from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
 
 log = logging.getLogger("pcprep")
 
-#: points per chunk of the neighbour passes (a (chunk, k_max, 3) float64 block
-#: is 16 MB at k_max = 32)
-CHUNK = 8192
+#: points per chunk of the neighbour passes (small blocks stay in the allocator's
+#: heap and in cache)
+CHUNK = 2048
 #: |h_j − τ| below GUARD (in units of h) uses η = θ instead of ψθ/|h_j − τ|
 #: (thesis: 1e-3 absolute, see Notes)
 GUARD = 1e-3
 #: neighbour normals tried as starting points of (4.9)
 N_CAND = 8
+#: init passes followed by the candidate selection
+SELECT_PASSES = 3
 #: IRLS sub-iterations of the τ step (4.14) per inner iteration
 TAU_IRLS = 3
 
@@ -137,11 +139,18 @@ def _run_chunks(fn, n: int) -> list:
         return list(ex.map(lambda b: fn(*b), bounds))
 
 
+F32 = np.float32
+
+
 @dataclass
 class _Ctx:
-    """Working state shared by the chunk kernels (lengths in units of h)."""
+    """Working state shared by the chunk kernels (lengths in units of h).
 
-    x: np.ndarray        # (n, 3) current positions
+    Neighbour arrays are built per chunk in structure-of-arrays float32 form
+    (one (c, k) array per coordinate); per-point state stays float64.
+    """
+
+    x: np.ndarray        # (n, 3) float64 current positions (units of h, centred)
     idx: np.ndarray      # (n, k) neighbour indices, self first
     r2: float            # radius²
     sd2: float           # σ_d²
@@ -149,96 +158,197 @@ class _Ctx:
     lam: float           # λ
     cos_n: float         # cos σ_n
     sn2: float           # σ_n² (radians²)
+    xt: np.ndarray = None  # (3, n) float32 copy of x for gathers
+
+    def refresh(self):
+        self.xt = np.ascontiguousarray(self.x.T, dtype=F32)
 
 
 def _geometry(ctx: _Ctx, s: int, e: int):
-    """D = p_i − p_j, θ and the radius mask for rows s:e."""
+    """D = p_i − p_j per coordinate, |D|², θ and the radius mask, rows s:e."""
     idx = ctx.idx[s:e]
-    d = ctx.x[s:e, None, :] - ctx.x[idx]
-    d2 = np.einsum("ckd,ckd->ck", d, d)
+    d = []
+    for a in range(3):
+        col = ctx.xt[a]
+        da = np.take(col, idx)
+        np.subtract(col[s:e, None], da, out=da)
+        d.append(da)
+    d2 = d[0] * d[0]
+    d2 += d[1] * d[1]
+    d2 += d[2] * d[2]
     valid = d2 <= ctx.r2
-    theta = np.exp(-d2 / ctx.sd2)
+    theta = np.exp(d2 * F32(-1.0 / ctx.sd2))
     theta *= valid
     return d, d2, valid, theta
 
 
+def _dot(d, v):
+    """Σ_a d[a] * v[:, a] for (c, k) arrays ``d`` and (c, 3) ``v``."""
+    v = v.astype(F32, copy=False)
+    out = d[0] * v[:, 0:1]
+    out += d[1] * v[:, 1:2]
+    out += d[2] * v[:, 2:3]
+    return out
+
+
 def _psi(res: np.ndarray, sh2: float) -> np.ndarray:
-    return np.exp(-(res * res) / sh2)
+    return np.exp(np.square(res) * F32(-1.0 / sh2))
 
 
 def _eta(res: np.ndarray, psi: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """η = ψθ/|h − τ|, and θ where |h − τ| < GUARD (thesis after (4.10))."""
     a = np.abs(res)
     small = a < GUARD
-    return np.where(small, theta, psi * theta / np.where(small, 1.0, a))
+    a[small] = 1.0
+    out = psi * theta
+    out /= a
+    np.copyto(out, theta, where=small)
+    return out
+
+
+def _rowsum(a: np.ndarray) -> np.ndarray:
+    return a.sum(axis=1, dtype=np.float64)
 
 
 def _fidelity(hgt, tau, theta, sh2):
     """Per-point fidelity Σ_j |h_j − τ| ψ θ (4.3)."""
-    res = hgt - tau[:, None]
-    return np.einsum("ck,ck->c", np.abs(res) * _psi(res, sh2), theta)
+    res = hgt - tau.astype(F32)[:, None]
+    out = np.abs(res)
+    out *= _psi(res, sh2)
+    out *= theta
+    return _rowsum(out)
 
 
-def _tv_terms(ctx: _Ctx, n_i: np.ndarray, nbn: np.ndarray, tvmask: np.ndarray):
+def _tau_irls(hgt, tau, theta, sh2, n_steps=TAU_IRLS):
+    """IRLS weighted L1-median of the heights (4.14); ``hgt`` (..., k)."""
+    tau = tau.astype(F32)
+    for _ in range(n_steps):
+        r = hgt - tau[..., None]
+        et = _eta(r, _psi(r, sh2), theta)
+        den = et.sum(axis=-1)
+        num = (et * hgt).sum(axis=-1)
+        tau = np.where(den > 0, num / np.where(den > 0, den, 1.0), tau).astype(F32)
+    return tau.astype(np.float64)
+
+
+def _smallest_eigvec(c00, c01, c02, c11, c12, c22):
+    """Unit eigenvector of the smallest eigenvalue of batched symmetric 3×3
+    matrices given by their upper triangles (closed form, float64)."""
+    c00, c01, c02, c11, c12, c22 = (np.asarray(v, dtype=np.float64)
+                                    for v in (c00, c01, c02, c11, c12, c22))
+    q = (c00 + c11 + c22) / 3.0
+    p1 = c01 ** 2 + c02 ** 2 + c12 ** 2
+    p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
+    p = np.sqrt(p2 / 6.0)
+    ps = np.where(p > 0, p, 1.0)
+    b00, b11, b22 = (c00 - q) / ps, (c11 - q) / ps, (c22 - q) / ps
+    b01, b02, b12 = c01 / ps, c02 / ps, c12 / ps
+    det = (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+           + b02 * (b01 * b12 - b11 * b02))
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    r0 = np.stack([c00 - lam0, c01, c02], axis=1)
+    r1 = np.stack([c01, c11 - lam0, c12], axis=1)
+    r2 = np.stack([c02, c12, c22 - lam0], axis=1)
+    cands = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)
+    nrm = np.linalg.norm(cands, axis=2)
+    best = np.argmax(nrm, axis=1)
+    rows = np.arange(len(q))
+    v = cands[rows, best]
+    ln = nrm[rows, best]
+    ok = ln > 1e-300
+    v = np.where(ok[:, None], v / np.where(ok, ln, 1.0)[:, None], np.array([0.0, 0.0, 1.0]))
+    return v
+
+
+def _tv(ctx: _Ctx, n_i: np.ndarray, nb, tvmask):
     """Sign-aligned neighbour normals, w_ij and Σ_j w_ij‖n_i − n_j‖₁ (4.4)."""
-    dots = np.einsum("ckd,cd->ck", nbn, n_i)
-    sgn = np.where(dots < 0.0, -1.0, 1.0)
-    al = nbn * sgn[:, :, None]
+    dots = _dot(nb, n_i)
+    sgn = np.where(dots < 0, F32(-1.0), F32(1.0))
+    al = [nb[a] * sgn for a in range(3)]
     c = np.abs(dots)
-    w = np.exp(-np.square((1.0 - c) / (1.0 - ctx.cos_n)))
+    w = np.square((1.0 - c) * F32(1.0 / (1.0 - ctx.cos_n)))
+    np.negative(w, out=w)
+    np.exp(w, out=w)
     w *= tvmask
-    l1 = np.abs(n_i[:, None, :] - al).sum(axis=2)
-    return al, w, np.einsum("ck,ck->c", w, l1)
+    ni = n_i.astype(F32)
+    l1 = np.abs(ni[:, 0:1] - al[0])
+    l1 += np.abs(ni[:, 1:2] - al[1])
+    l1 += np.abs(ni[:, 2:3] - al[2])
+    l1 *= w
+    return al, w, _rowsum(l1)
 
 
 # ---------------------------------------------------------------------------
 # the steps of Algorithm 4.1
 
 def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
-    """n⁰ by the reweighted eigen-iteration (4.9): smallest eigenvector of
-    Σ_j ω_j (p_i − p_j)(p_i − p_j)ᵀ, ω = θ on the first pass (n = 0), then
-    ω = ψ(h_j)θ/|h_j| (θ where |h_j| < GUARD).
+    """n⁰ by the reweighted eigen-iteration (4.9), with the offset τ of (4.5).
 
-    Between the first and the second pass every point takes, among its own
-    normal and those of ``n_cand`` neighbours spread over its list, the one with
-    the lowest fidelity (4.3) at τ = 0 (see Notes of :func:`denoise_l1_tv`).
+    Pass 1 is θ-weighted PCA (ω = θ, n = 0).  Then every point takes, among its
+    own normal and those of ``n_cand`` neighbours spread over its list, the one
+    of lowest robust loss Σ_j θ(1 − ψ) (τ by (4.14) for each candidate).  Later
+    passes take the smallest eigenvector of Σ_j ω_j (c_i − p_j)(c_i − p_j)ᵀ with
+    c_i = p_i − τ_i n_i and ω = ψθ/|h_j − τ_i| (θ where |h_j − τ_i| < GUARD).
     """
     n = len(ctx.x)
     normals = np.zeros((n, 3))
+    tau = np.zeros(n)
     k = ctx.idx.shape[1]
     cols = np.unique(np.linspace(1, k - 1, min(n_cand, k - 1)).round().astype(int))
 
     def kernel(s, e, first):
         d, _, _, theta = _geometry(ctx, s, e)
         if first:
-            om = theta
+            wsum = theta.sum(axis=1, keepdims=True)
+            om = theta / wsum
+            dc = [da - _rowsum(om * da)[:, None].astype(F32) for da in d]
+            t_new = np.zeros(e - s)
         else:
-            hgt = np.einsum("ckd,cd->ck", d, normals[s:e])
-            om = _eta(hgt, _psi(hgt, ctx.sh2), theta)
-        dw = d * om[:, :, None]
-        cov = np.einsum("cki,ckj->cij", dw, d)
-        _, vec = np.linalg.eigh(cov)
-        return vec[:, :, 0]
+            n_i = normals[s:e]
+            hgt = _dot(d, n_i)
+            t_new = _tau_irls(hgt, tau[s:e], theta, ctx.sh2)
+            res = hgt - t_new.astype(F32)[:, None]
+            om = _eta(res, _psi(res, ctx.sh2), theta)
+            dc = [d[a] - (t_new * n_i[:, a]).astype(F32)[:, None] for a in range(3)]
+        wd = [om * dc[a] for a in range(3)]
+        cov = [_rowsum(wd[a] * dc[b]) for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2),
+                                                   (2, 2))]
+        return _smallest_eigvec(*cov), t_new
 
     def select(s, e):
         d, _, valid, theta = _geometry(ctx, s, e)
+        m = len(cols) + 1
         cand = np.concatenate([normals[s:e, None, :], normals[ctx.idx[s:e][:, cols]]], axis=1)
         ok = np.concatenate([np.ones((e - s, 1), bool), valid[:, cols]], axis=1)
-        hgt = np.einsum("ckd,cmd->cmk", d, cand)
-        fid = np.einsum("cmk,ck->cm", np.abs(hgt) * _psi(hgt, ctx.sh2), theta)
-        fid[~ok] = np.inf
-        best = np.argmin(fid, axis=1)
-        return cand[np.arange(e - s), best]
+        c32 = cand.astype(F32)
+        hgt = (d[0][:, None, :] * c32[:, :, 0:1] + d[1][:, None, :] * c32[:, :, 1:2]
+               + d[2][:, None, :] * c32[:, :, 2:3])
+        th = theta[:, None, :]
+        t0 = (hgt * th).sum(axis=2) / np.maximum(theta.sum(axis=1), 1e-30)[:, None]
+        t = _tau_irls(hgt, t0, th, ctx.sh2, 2).astype(F32)
+        res = hgt - t[..., None]
+        # Welsch loss Σ θ(1 − ψ): (4.3) itself redescends to 0 and would prefer a
+        # plane that misses every neighbour
+        loss = ((1.0 - _psi(res, ctx.sh2)) * th).sum(axis=2, dtype=np.float64)
+        loss[~ok] = np.inf
+        best = np.argmin(loss, axis=1)
+        rows = np.arange(e - s)
+        del m
+        return cand[rows, best], t[rows, best].astype(np.float64)
 
     for it in range(init_iter):
         parts = _run_chunks(lambda s, e: kernel(s, e, it == 0), n)
-        new = np.concatenate(parts, axis=0)
+        new = np.concatenate([q[0] for q in parts], axis=0)
+        tau = np.concatenate([q[1] for q in parts])
         if it > 0:  # keep each normal's sign from pass to pass
             flip = np.einsum("ij,ij->i", new, normals) < 0
             new[flip] *= -1.0
         normals = new
-        if it == 0 and n_cand > 0:
-            normals = np.concatenate(_run_chunks(select, n), axis=0)
+        if n_cand > 0 and it < SELECT_PASSES:
+            parts = _run_chunks(select, n)
+            normals = np.concatenate([q[0] for q in parts], axis=0)
+            tau = np.concatenate([q[1] for q in parts])
     return normals
 
 
@@ -246,73 +356,78 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
                 vn: bool = False):
     """One pass over all points at fixed positions.
 
-    Returns the per-point energy (4.5) of the current state ``(normals, tau)``
-    and, when ``propose``, the next state: one proximal-gradient normal step
-    (4.10)-(4.12) followed by the IRLS τ step (4.14).  Both sub-steps keep a
-    point's previous value when they would raise its own energy (neighbours
-    held fixed).  With ``vn`` also returns the normal variation V_n (4.17).
+    Returns the per-point energy (4.5) of the current state ``(normals, tau)``;
+    when ``propose`` also the next state: the IRLS τ step (4.14) at the current
+    normals (kept per point only if it lowers the point's fidelity), then one
+    proximal-gradient normal step (4.10)-(4.12) at the new τ.  With ``vn`` also
+    returns the normal variation V_n (4.17).
     """
     n = len(ctx.x)
     energy = np.zeros(n)
     new_n = np.zeros((n, 3)) if propose else None
     new_t = np.zeros(n) if propose else None
     vnorm = np.zeros(n) if vn else None
+    nt = np.ascontiguousarray(normals.T, dtype=F32)
 
     def kernel(s, e):
         d, d2, valid, theta = _geometry(ctx, s, e)
+        idx = ctx.idx[s:e]
         n_i = normals[s:e]
         t_i = tau[s:e]
-        nbn = normals[ctx.idx[s:e]]
-        tvmask = valid.copy()
+        nb = [np.take(nt[a], idx) for a in range(3)]
+        tvmask = valid
         tvmask[:, 0] = False  # ‖n_i − n_i‖ = 0: the point itself adds nothing
-        hgt = np.einsum("ckd,cd->ck", d, n_i)
-        res = hgt - t_i[:, None]
+        cnt = tvmask.sum(axis=1)
+        hgt = _dot(d, n_i)
+        res = hgt - t_i.astype(F32)[:, None]
         psi = _psi(res, ctx.sh2)
-        fid = np.einsum("ck,ck->c", np.abs(res) * psi, theta)
-        al, w, tv = _tv_terms(ctx, n_i, nbn, tvmask)
-        e_cur = fid + ctx.lam * tv
-        energy[s:e] = e_cur
+        ares = np.abs(res)
+        fid = _rowsum(ares * psi * theta)
+        al, w, tv = _tv(ctx, n_i, nb, tvmask)
+        energy[s:e] = fid + ctx.lam * tv
         if vn:
-            diff2 = np.square(n_i[:, None, :] - al).sum(axis=2)
-            wn = np.exp(-diff2 / (2.0 * ctx.sn2)) * tvmask
-            cnt = tvmask.sum(axis=1)
-            vnorm[s:e] = np.where(cnt > 0, wn.sum(axis=1) / np.maximum(cnt, 1), 1.0)
+            diff2 = np.square(n_i[:, 0:1].astype(F32) - al[0])
+            diff2 += np.square(n_i[:, 1:2].astype(F32) - al[1])
+            diff2 += np.square(n_i[:, 2:3].astype(F32) - al[2])
+            wn = np.exp(diff2 * F32(-1.0 / (2.0 * ctx.sn2)))
+            wn *= tvmask
+            vnorm[s:e] = np.where(cnt > 0, _rowsum(wn) / np.maximum(cnt, 1), 1.0)
         if not propose:
             return
+        # --- τ-step (4.14): one IRLS sweep from the current τ
+        eta = _eta(res, psi, theta)
+        den = _rowsum(eta)
+        num = _rowsum(eta * hgt)
+        t_new = np.where(den > 0, num / np.where(den > 0, den, 1.0), t_i)
+        res = hgt - t_new.astype(F32)[:, None]
+        psi = _psi(res, ctx.sh2)
+        f_new = _rowsum(np.abs(res) * psi * theta)
+        keep = f_new > fid
+        if keep.any():
+            t_new[keep] = t_i[keep]
+            res[keep] = hgt[keep] - t_i[keep].astype(F32)[:, None]
+            psi[keep] = _psi(res[keep], ctx.sh2)
+        new_t[s:e] = t_new
         # --- n-step: gradient of E_f (4.10), step 1/L of its IRLS majoriser
         eta = _eta(res, psi, theta)
-        grad = np.einsum("ck,ckd->cd", eta * res, d)
-        lip = np.einsum("ck,ck->c", eta, d2)
+        lip = _rowsum(eta * d2)
+        eta *= res
+        grad = np.stack([_rowsum(eta * d[a]) for a in range(3)], axis=1)
         gamma = np.where(lip > 0, 1.0 / np.where(lip > 0, lip, 1.0), 0.0)
         half = n_i - gamma[:, None] * grad
-        # proximal step (4.11)-(4.12) on d_ij = n_i − n_j, averaged over j
-        cnt = tvmask.sum(axis=1)
-        thr = (gamma * ctx.lam * cnt)[:, None] * w
-        dd = half[:, None, :] - al
-        soft = np.sign(dd) * np.maximum(np.abs(dd) - thr[:, :, None], 0.0)
-        rebuilt = np.einsum("ck,ckd->cd", tvmask.astype(np.float64), al + soft)
-        cand = np.where((cnt > 0)[:, None], rebuilt / np.maximum(cnt, 1)[:, None], half)
+        # proximal step (4.11)-(4.12) on d_ij = n_i − n_j, averaged over j:
+        # n_j + soft(d_ij, t) = n_i − clip(d_ij, −t, t)
+        thr = w * (gamma * ctx.lam * cnt).astype(F32)[:, None]
+        h32 = half.astype(F32)
+        cand = np.empty((e - s, 3))  # noqa: NPY-empty -- every column is written
+        for a in range(3):
+            dd = h32[:, a:a + 1] - al[a]
+            np.minimum(dd, thr, out=dd)
+            np.maximum(dd, -thr, out=dd)
+            cand[:, a] = half[:, a] - _rowsum(dd) / np.maximum(cnt, 1)
         norm = np.linalg.norm(cand, axis=1)
         ok = norm > 1e-12
-        cand = np.where(ok[:, None], cand / np.where(ok, norm, 1.0)[:, None], n_i)
-        hgt_c = np.einsum("ckd,cd->ck", d, cand)
-        _, _, tv_c = _tv_terms(ctx, cand, nbn, tvmask)
-        e_c = _fidelity(hgt_c, t_i, theta, ctx.sh2) + ctx.lam * tv_c
-        take = e_c < e_cur
-        n_new = np.where(take[:, None], cand, n_i)
-        hgt = np.where(take[:, None], hgt_c, hgt)
-        # --- τ-step: IRLS weighted median (4.14), ψ and η frozen per sweep
-        t_new = t_i
-        f_old = _fidelity(hgt, t_i, theta, ctx.sh2)
-        for _ in range(TAU_IRLS):
-            r = hgt - t_new[:, None]
-            et = _eta(r, _psi(r, ctx.sh2), theta)
-            den = et.sum(axis=1)
-            t_new = np.where(den > 0, np.einsum("ck,ck->c", et, hgt)
-                             / np.where(den > 0, den, 1.0), t_new)
-        f_new = _fidelity(hgt, t_new, theta, ctx.sh2)
-        new_t[s:e] = np.where(f_new < f_old, t_new, t_i)
-        new_n[s:e] = n_new
+        new_n[s:e] = np.where(ok[:, None], cand / np.where(ok, norm, 1.0)[:, None], n_i)
 
     _run_chunks(kernel, n)
     return energy, new_n, new_t, vnorm
@@ -330,20 +445,26 @@ def _edge_correct(ctx: _Ctx, normals: np.ndarray, edge: np.ndarray, rho: float,
     rows = np.flatnonzero(edge)
     if rows.size == 0:
         return 0
-    idx = ctx.idx[rows, 1:]
-    d = ctx.x[rows, None, :] - ctx.x[idx]
-    d2 = np.einsum("ckd,ckd->ck", d, d)
-    nbn = normals[idx]
-    c = np.abs(np.einsum("ckd,cd->ck", nbn, normals[rows]))
-    other = (c < ctx.cos_n) & (d2 <= ctx.r2)
-    has = other.any(axis=1)
-    jpos = np.argmin(np.where(other, d2, np.inf), axis=1)
-    sel = np.arange(len(rows))
-    nj = nbn[sel, jpos]
-    dproj = np.einsum("cd,cd->c", d[sel, jpos], nj)
-    move = has & (np.abs(dproj) > delta) & (np.abs(dproj) < rho)
-    ctx.x[rows[move]] -= dproj[move, None] * nj[move]
-    return int(move.sum())
+    moved = np.zeros(len(rows), dtype=bool)
+    shift = np.zeros((len(rows), 3))
+    for s in range(0, len(rows), CHUNK):
+        r = rows[s:s + CHUNK]
+        idx = ctx.idx[r, 1:]
+        d = ctx.x[r, None, :] - ctx.x[idx]
+        d2 = np.einsum("ckd,ckd->ck", d, d)
+        nbn = normals[idx]
+        c = np.abs(np.einsum("ckd,cd->ck", nbn, normals[r]))
+        other = (c < ctx.cos_n) & (d2 <= ctx.r2)
+        has = other.any(axis=1)
+        jpos = np.argmin(np.where(other, d2, np.inf), axis=1)
+        sel = np.arange(len(r))
+        nj = nbn[sel, jpos]
+        dproj = np.einsum("cd,cd->c", d[sel, jpos], nj)
+        move = has & (np.abs(dproj) > delta) & (np.abs(dproj) < rho)
+        moved[s:s + CHUNK] = move
+        shift[s:s + CHUNK] = np.where(move[:, None], dproj[:, None] * nj, 0.0)
+    ctx.x[rows] -= shift
+    return int(moved.sum())
 
 
 # ---------------------------------------------------------------------------
@@ -358,13 +479,20 @@ def _prepare(points, normals, p: dict, func: str):
     k = min(max(k_max, SPACING_K + 1), len(x))
     x, centre = centered(x)
     tree = build_tree(x)
+    # work in the tree's leaf order: neighbours then sit close in memory, which
+    # makes the gathers of every pass cache-friendly
+    perm = np.asarray(tree.indices, dtype=np.int64)
+    x = x[perm]
+    tree = build_tree(x)
     dist, idx = tree.query(x, k=k, workers=-1)
     h = float(dist[:, 1:SPACING_K + 1].mean())
     if not np.isfinite(h) or h <= 0.0:
         raise InvalidParameterError(f"{func}: every point coincides with its neighbours (h = 0)")
     del dist, tree
     idx = idx.astype(np.int32 if len(x) < 2**31 else np.int64)
-    return x / h, nrm, centre, h, idx
+    if nrm is not None:
+        nrm = nrm[perm]
+    return x / h, nrm, centre, h, idx, perm
 
 
 def _context(x, idx, p: dict) -> _Ctx:
@@ -502,7 +630,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
         edge_threshold=edge_threshold, n_iter=n_iter, inner_iter=inner_iter,
         init_iter=init_iter, tol=tol, edge_correction=edge_correction, k_max=k_max,
         seed=seed), func)
-    x, hint, centre, h, idx = _prepare(points, normals, p, func)
+    x, hint, centre, h, idx, perm = _prepare(points, normals, p, func)
     n = len(x)
     x0 = x.copy()
     ctx = _context(x, idx, p)
@@ -600,10 +728,12 @@ def energy_l1_tv(points, normals, tau=None, *, lambda_tv: float = 0.2,
     full.update(lambda_tv=lambda_tv, sigma_h=sigma_h, sigma_d=sigma_d, radius=radius,
                 sigma_n_deg=sigma_n_deg, k_max=k_max)
     p = resolve_params(PARAMS, full, func)
-    x, nrm, _, _, idx = _prepare(points, normals, p, func)
-    if nrm is None:
+    if normals is None:
         raise InvalidParameterError(f"{func}: normals must be given")
+    x, nrm, _, _, idx, perm = _prepare(points, normals, p, func)
     t = np.zeros(len(x)) if tau is None else np.asarray(tau, dtype=np.float64).reshape(len(x))
+    t = t[perm]
     ctx = _context(x, idx, p)
+    ctx.refresh()
     e_i, _, _, _ = _inner_pass(ctx, nrm, t, propose=False)
     return float(e_i.sum())

@@ -40,6 +40,10 @@ log = logging.getLogger("pcprep")
 CHUNK = 16_384
 #: fewest points the filter accepts (a quadric needs 6 neighbours)
 MIN_POINTS = 10
+#: coordinate-descent sweeps and tolerance of the Lasso (5.6); the measures used
+#: (‖α‖₀ with a 1e-10 threshold, the residual) are stable long before this
+LASSO_ITER = 100
+LASSO_TOL = 1e-7
 
 PARAMS = (
     Param("radius", float, 3.0, "r: radius of the neighbourhoods N_g and length of the "
@@ -343,7 +347,7 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         D = Fbar[atoms[s:e]].transpose(0, 2, 1)  # (c, 5, m)
-        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"])
+        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"], max_iter=LASSO_ITER, tol=LASSO_TOL)
         sparsity[s:e] = (np.abs(sol.coef) > 1e-10).sum(axis=1)
         resid[s:e] = _residual_norm(sol.residual)
         n_bad += int((~sol.converged).sum())

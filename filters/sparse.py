@@ -405,6 +405,12 @@ def _update_atoms(Xt, D, sup, coef, rng):
         D[j] = dj
         coef[r, l] = new
         E_all[r] = Ej - new[:, None] * dj[None, :]
+    # like Elad's K-SVD toolbox ("clear dictionary"): an atom nearly equal to
+    # another one (|cos| > 0.99) is wasted as well
+    cos = np.abs(D @ D.T)
+    np.fill_diagonal(cos, 0.0)
+    dup = np.flatnonzero(np.triu(cos > 0.99).any(axis=0))
+    unused = sorted(set(unused) | set(dup.tolist()))
     if unused:
         # replace unused atoms by the worst-represented training signals
         err = np.einsum("ij,ij->i", E_all, E_all)

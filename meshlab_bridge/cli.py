@@ -88,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--quick", action="store_true",
                      help="generated and pymeshlab-shipped data only; a few minutes")
     rep.add_argument("--out", default="reports", help="output folder (default: reports)")
+    rep.add_argument("--assemble-only", action="store_true",
+                     help="do not re-run the harnesses; assemble the index from the reports "
+                          "already in the output folder")
     rep.add_argument("--seed", type=int, default=0)
     rep.add_argument("--quiet", action="store_true")
     return parser
@@ -166,7 +169,8 @@ def _cmd_bench(args) -> None:
 def _cmd_report(args) -> None:
     from baselines import report
 
-    report.build(quick=args.quick, seed=args.seed, out_dir=args.out)
+    report.build(quick=args.quick, seed=args.seed, out_dir=args.out,
+                 assemble_only=args.assemble_only)
 
 
 def main(argv: list[str] | None = None) -> int:

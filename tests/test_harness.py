@@ -51,7 +51,7 @@ def _parent_marker():
     return dict(_STATE), os.getpid()
 
 
-# --- run_isolated ------------------------------------------------------------------------
+# --- run_isolated ---------------------------------------------------------------------
 
 def test_returns_value_args_and_kwargs():
     x = np.random.default_rng(0).normal(size=(1000, 3))
@@ -131,10 +131,11 @@ def test_measure_is_run_isolated():
     assert not out.ok and out.error.startswith("ValueError")
 
 
-# --- markdown_table ----------------------------------------------------------------------
+# --- markdown_table -------------------------------------------------------------------
 
 def _rows(md):
-    return [[c.strip() for c in line.strip("|").split("|")] for line in md.strip().splitlines()[2:]]
+    lines = md.strip().splitlines()[2:]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in lines]
 
 
 def test_table_bolds_best_per_row():
@@ -160,7 +161,8 @@ def test_table_shows_failures_never_bold():
                         [["x", crash, good, "failed: no normals", None]],
                         best={1: "min", 2: "min", 3: "min", 4: "min"})
     row = _rows(md)[0]
-    assert row == ["x", "crashed: signal 11 (SIGSEGV)", "**2**", "failed: no normals", "n/a"]
+    assert row == ["x", "crashed: signal 11 (SIGSEGV)", "**2**", "failed: no normals",
+                   "n/a"]
     assert all(cell for cell in row)
 
 
@@ -173,7 +175,7 @@ def test_table_escapes_pipes_and_rejects_bad_spec():
         markdown_table(["a", "b"], [[1]])
 
 
-# --- write_report ------------------------------------------------------------------------
+# --- write_report ---------------------------------------------------------------------
 
 def test_write_report_json_safe(tmp_path):
     data = {"n": np.int64(5), "t": np.float32(0.5), "arr": np.arange(3), "nan": math.nan,

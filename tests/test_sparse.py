@@ -1,0 +1,133 @@
+"""Tests for filters/sparse.py: planted codes and dictionaries, agreement with
+scikit-learn, determinism, bad input."""
+
+import numpy as np
+import pytest
+from scipy import sparse as sp
+from sklearn.linear_model import Lasso, orthogonal_mp_gram
+
+from filters import sparse
+from filters._validation import InvalidParameterError
+
+
+def _planted(d, S, m, k, seed):
+    rng = np.random.default_rng(seed)
+    D = rng.standard_normal((S, d))
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    codes = np.zeros((m, S))
+    idx = np.argsort(rng.random((m, S)), axis=1)[:, :k]
+    vals = rng.standard_normal((m, k)) + np.sign(rng.standard_normal((m, k)))
+    np.put_along_axis(codes, idx, vals, axis=1)
+    return D, codes, codes @ D
+
+
+def test_omp_recovers_planted_support():
+    D, codes, X = _planted(d=64, S=80, m=500, k=3, seed=0)
+    est = sparse.omp(X, D, n_nonzero_coefs=3)
+    assert sp.issparse(est) and est.shape == codes.shape
+    est = est.toarray()
+    assert np.array_equal(est != 0, codes != 0)
+    np.testing.assert_allclose(est, codes, atol=1e-8)
+
+
+def test_omp_matches_sklearn():
+    rng = np.random.default_rng(1)
+    D = rng.standard_normal((200, 7))
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    X = rng.standard_normal((300, 7))
+    ref = orthogonal_mp_gram(D @ D.T, (X @ D.T).T, n_nonzero_coefs=4).T
+    np.testing.assert_allclose(sparse.omp(X, D, n_nonzero_coefs=4).toarray(), ref, atol=1e-9)
+    ref = orthogonal_mp_gram(D @ D.T, (X @ D.T).T, tol=0.2,
+                             norms_squared=(X ** 2).sum(axis=1)).T
+    np.testing.assert_allclose(sparse.omp(X, D, tol=0.2).toarray(), ref, atol=1e-9)
+
+
+def test_omp_tol_stops_at_residual():
+    rng = np.random.default_rng(2)
+    D = rng.standard_normal((50, 10))
+    X = rng.standard_normal((200, 10))
+    codes = sparse.omp(X, D, tol=0.5)
+    nnz, res = sparse.code_length(codes, X, D / np.linalg.norm(D, axis=1)[:, None])
+    assert (res ** 2 <= 0.5 + 1e-9).all()
+    assert nnz.min() >= 1 and nnz.max() > nnz.min()
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.3, 1.0])
+def test_lasso_lars_matches_sklearn_lasso(alpha):
+    rng = np.random.default_rng(3)
+    d = 7
+    D = rng.standard_normal((200, d))
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    X = 2.0 * rng.standard_normal((12, d))
+    est = sparse.lasso_lars(X, D, alpha=alpha).toarray()
+
+    def obj(x, b):
+        return 0.5 * np.sum((x - b @ D) ** 2) + alpha * np.abs(b).sum()
+
+    for i in range(len(X)):
+        ref = Lasso(alpha=alpha / d, fit_intercept=False, tol=1e-12,
+                    max_iter=200_000).fit(D.T, X[i]).coef_
+        assert obj(X[i], est[i]) <= obj(X[i], ref) + 1e-9
+        # optimality (KKT): |d_j·r| ≤ alpha everywhere, = alpha on the support
+        cor = (X[i] - est[i] @ D) @ D.T
+        assert np.abs(cor).max() <= alpha * (1 + 1e-7)
+        on = est[i] != 0
+        np.testing.assert_allclose(cor[on], alpha * np.sign(est[i][on]), rtol=1e-7)
+
+
+def test_lasso_lars_zero_above_alpha_max():
+    rng = np.random.default_rng(4)
+    D = rng.standard_normal((20, 5))
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    X = rng.standard_normal((10, 5))
+    big = np.abs(X @ D.T).max() * 1.01
+    assert sparse.lasso_lars(X, D, alpha=big).nnz == 0
+
+
+def test_ksvd_recovers_planted_dictionary():
+    D, _, X = _planted(d=16, S=24, m=2000, k=3, seed=1)
+    res = sparse.ksvd(X, 24, n_nonzero_coefs=3, max_iter=40, seed=1)
+    assert res.dictionary.shape == (24, 16)
+    np.testing.assert_allclose(np.linalg.norm(res.dictionary, axis=1), 1.0)
+    best = np.abs(res.dictionary @ D.T).max(axis=0)
+    assert (best > 0.99).mean() > 0.9
+    assert res.errors[-1] < res.errors[0]
+    assert res.codes.shape == (2000, 24)
+
+
+def test_ksvd_deterministic_and_subsample():
+    rng = np.random.default_rng(5)
+    X = rng.standard_normal((3000, 7))
+    a = sparse.ksvd(X, 20, n_nonzero_coefs=2, max_iter=3, max_train=1000, seed=7)
+    b = sparse.ksvd(X, 20, n_nonzero_coefs=2, max_iter=3, max_train=1000, seed=7)
+    np.testing.assert_array_equal(a.dictionary, b.dictionary)
+    assert len(a.train_idx) == 1000 and a.codes.shape == (3000, 20)
+    c = sparse.ksvd(X, 20, n_nonzero_coefs=2, max_iter=3, max_train=1000, seed=8)
+    assert not np.array_equal(a.dictionary, c.dictionary)
+
+
+def test_code_length():
+    D = np.eye(3)
+    X = np.array([[1.0, 0, 0], [1.0, 2.0, 0.5]])
+    codes = np.array([[1.0, 0, 0], [1.0, 2.0, 0]])
+    nnz, res = sparse.code_length(codes, X, D)
+    np.testing.assert_array_equal(nnz, [1, 2])
+    np.testing.assert_allclose(res, [0.0, 0.5])
+
+
+def test_bad_input():
+    D = np.eye(3)
+    with pytest.raises(InvalidParameterError, match="omp"):
+        sparse.omp(np.full((2, 3), np.nan), D, n_nonzero_coefs=1)
+    with pytest.raises(InvalidParameterError, match="columns"):
+        sparse.omp(np.ones((2, 4)), D, n_nonzero_coefs=1)
+    with pytest.raises(InvalidParameterError, match="n_nonzero_coefs"):
+        sparse.omp(np.ones((2, 3)), D, n_nonzero_coefs=5)
+    with pytest.raises(InvalidParameterError, match="alpha"):
+        sparse.lasso_lars(np.ones((2, 3)), D, alpha=-1.0)
+    with pytest.raises(InvalidParameterError, match="zero atoms"):
+        sparse.lasso_lars(np.ones((2, 3)), np.zeros((2, 3)), alpha=0.1)
+    with pytest.raises(InvalidParameterError, match="ksvd"):
+        sparse.ksvd(np.ones((0, 3)), 4)
+    with pytest.raises(InvalidParameterError, match="seed"):
+        sparse.ksvd(np.ones((5, 3)), 4, seed=-1)
