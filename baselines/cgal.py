@@ -305,26 +305,16 @@ def _closest(best, count, value, key):
     return best
 
 
-def grid_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_iter: int = 60
-                        ) -> np.ndarray:
-    """:func:`grid_simplify` with the cell size found by bisection so that about
-    ``count`` points are kept.
-
-    The kept count is a non-increasing step function of the cell size (up to
-    grid-alignment jitter); the cell is bisected in log scale until
-    ``|kept - count| <= rtol * count`` (default 1 %) or ``max_iter`` steps, and
-    the closest result found is returned (logged at info level when outside the
-    tolerance; e.g. when several cells change at once on tiny clouds).
-    Returns sorted kept indices.
-    """
-    func = "grid_simplify_count"
+def _prepare_count(points, count, rtol, func):
     X = as_points(points, func=func, min_points=2)
     count = _check_count(count, len(X), func)
     rtol = _check_real(rtol, "rtol", func, 0.0, 1.0, low_open=False)
-    if count == len(X):
-        return np.arange(len(X), dtype=np.int64)
     Xc, _ = centered(X)
-    ps = to_point_set(Xc)
+    return X, Xc, count, rtol
+
+
+def _grid_search(ps, Xc, count: int, rtol: float, max_iter: int) -> float:
+    """Cell size keeping about ``count`` points; leaves ``ps`` simplified with it."""
     psp = _psp()
 
     def run(cell: float) -> int:
@@ -345,38 +335,50 @@ def grid_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_iter: 
             lo = mid
         else:
             hi = mid
-    got = run(math.exp(best[1]))
+    cell = math.exp(best[1])
+    got = run(cell)
     if abs(got - count) > rtol * count:
-        log.info("%s: kept %d points for a target of %d (tolerance %.3g)",
-                 func, got, count, rtol)
+        log.info("grid_simplify_count: kept %d points for a target of %d (tolerance %.3g)",
+                 got, count, rtol)
+    return cell
+
+
+def grid_cell_for_count(points, count: int, rtol: float = COUNT_RTOL,
+                        max_iter: int = 60) -> float:
+    """Cell size (cloud units) for which :func:`grid_simplify` keeps about
+    ``count`` points (see :func:`grid_simplify_count`).  Benches time
+    ``grid_simplify(points, cell)`` with it, without the search."""
+    func = "grid_cell_for_count"
+    X, Xc, count, rtol = _prepare_count(points, count, rtol, func)
+    return _grid_search(to_point_set(Xc), Xc, count, rtol, max_iter)
+
+
+def grid_simplify_count(points, count: int, rtol: float = COUNT_RTOL, max_iter: int = 60
+                        ) -> np.ndarray:
+    """:func:`grid_simplify` with the cell size found by bisection so that about
+    ``count`` points are kept.
+
+    The kept count is a non-increasing step function of the cell size (up to
+    grid-alignment jitter); the cell is bisected in log scale until
+    ``|kept - count| <= rtol * count`` (default 1 %) or ``max_iter`` steps, and
+    the closest result found is returned (logged at info level when outside the
+    tolerance; e.g. when several cells change at once on tiny clouds).
+    Returns sorted kept indices.  The search costs ~20 grid passes; time
+    :func:`grid_simplify` with :func:`grid_cell_for_count` to bench the method.
+    """
+    func = "grid_simplify_count"
+    X, Xc, count, rtol = _prepare_count(points, count, rtol, func)
+    if count == len(X):
+        return np.arange(len(X), dtype=np.int64)
+    ps = to_point_set(Xc)
+    _grid_search(ps, Xc, count, rtol, max_iter)
     return _kept(ps, len(X), func)
 
 
-def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
-                             max_iter: int = 40) -> np.ndarray:
-    """:func:`hierarchy_simplify` tuned to keep about ``count`` points.
-
-    The cluster ``size`` is an integer, so it only brackets the target (e.g.
-    on 100K sphere points size 2 keeps 61 %, size 3 keeps 43 %).  Step 1
-    bisects the integer size to the smallest size keeping <= count; step 2
-    lowers ``maximum_variation`` below CGAL's 1/3 (more splitting, more
-    points) by log-scale bisection at that size until
-    ``|kept - count| <= rtol * count`` (default 1 %).  The closest result found
-    is returned.  Returns sorted kept indices.
-
-    Targets between kept(size=2) and kept(size=3) (about 43-61 % of a surface
-    cloud) are NOT reachable: clusters of <= 3 points are always coplanar
-    (variation 0) and never split by the variation test, so only the nearer of
-    the two counts can be returned; check ``len(kept)`` in benches.
-    """
-    func = "hierarchy_simplify_count"
-    X = as_points(points, func=func, min_points=2)
-    count = _check_count(count, len(X), func)
-    rtol = _check_real(rtol, "rtol", func, 0.0, 1.0, low_open=False)
-    if count == len(X):
-        return np.arange(len(X), dtype=np.int64)
-    Xc, _ = centered(X)
-    ps = to_point_set(Xc)
+def _hierarchy_search(ps, n: int, count: int, rtol: float, max_iter: int
+                      ) -> tuple[int, float]:
+    """(size, maximum_variation) keeping about ``count`` points; leaves ``ps``
+    simplified with them."""
     psp = _psp()
     var0 = 1.0 / 3.0
 
@@ -385,11 +387,9 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
         psp.hierarchy_simplify_point_set(ps, int(size), float(var))
         return ps.size()
 
-    best = None  # (kept, (size, var))
-    n = len(X)
     lo, hi = 1, min(n, max(2, math.ceil(2.0 * n / count)))   # size=1 keeps all points
     got = run(hi, var0)
-    best = _closest(best, got, (hi, var0), count)
+    best = _closest(None, got, (hi, var0), count)              # (kept, (size, var))
     while got > count and hi < n:            # expand until kept(hi) <= count
         lo, hi = hi, min(n, 2 * hi)
         got = run(hi, var0)
@@ -403,9 +403,7 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
         else:
             hi = mid
     if abs(best[0] - count) > rtol * count and hi >= 4:
-        got = run(hi, var0)
-        best = _closest(best, got, (hi, var0), count)
-        vlo, vhi = math.log(1e-9), math.log(var0)   # vlo keeps more, vhi keeps fewer
+        vlo, vhi = math.log(1e-6), math.log(var0)   # vlo keeps more, vhi keeps fewer
         for _ in range(max_iter):
             if abs(best[0] - count) <= rtol * count:
                 break
@@ -418,8 +416,49 @@ def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
                 vhi = mid
     got = run(*best[1])
     if abs(got - count) > rtol * count:
-        log.info("%s: kept %d points for a target of %d (tolerance %.3g)",
-                 func, got, count, rtol)
+        log.info("hierarchy_simplify_count: kept %d points for a target of %d "
+                 "(tolerance %.3g)", got, count, rtol)
+    return int(best[1][0]), float(best[1][1])
+
+
+def hierarchy_params_for_count(points, count: int, rtol: float = COUNT_RTOL,
+                               max_iter: int = 40) -> tuple[int, float]:
+    """``(size, maximum_variation)`` for which :func:`hierarchy_simplify` keeps
+    about ``count`` points (see :func:`hierarchy_simplify_count`).  Benches time
+    ``hierarchy_simplify(points, size, var)`` with them, without the search."""
+    func = "hierarchy_params_for_count"
+    X, Xc, count, rtol = _prepare_count(points, count, rtol, func)
+    if count == len(X):
+        return 1, 1.0 / 3.0
+    return _hierarchy_search(to_point_set(Xc), len(X), count, rtol, max_iter)
+
+
+def hierarchy_simplify_count(points, count: int, rtol: float = COUNT_RTOL,
+                             max_iter: int = 40) -> np.ndarray:
+    """:func:`hierarchy_simplify` tuned to keep about ``count`` points.
+
+    The cluster ``size`` is an integer, so it only brackets the target (on a
+    100K bunny, size 28-30 keep 4.7-5.2 %; size 2 keeps 61 %, size 3 43 %).
+    Step 1 bisects the integer size to the smallest size keeping <= count at
+    CGAL's default ``maximum_variation`` 1/3; step 2 lowers
+    ``maximum_variation`` (more splitting in curved regions, more points) by
+    log-scale bisection in [1e-6, 1/3] at that size until
+    ``|kept - count| <= rtol * count`` (default 1 %).  The closest result found
+    is returned.  Returns sorted kept indices.  The search costs 10-40
+    hierarchy passes; time :func:`hierarchy_simplify` with
+    :func:`hierarchy_params_for_count` to bench the method.
+
+    Targets between kept(size=2) and kept(size=3) (about 43-61 % of a surface
+    cloud) are NOT reachable: clusters of <= 3 points are always coplanar
+    (variation 0) and never split by the variation test, so only the nearer of
+    the two counts can be returned; check ``len(kept)`` in benches.
+    """
+    func = "hierarchy_simplify_count"
+    X, Xc, count, rtol = _prepare_count(points, count, rtol, func)
+    if count == len(X):
+        return np.arange(len(X), dtype=np.int64)
+    ps = to_point_set(Xc)
+    _hierarchy_search(ps, len(X), count, rtol, max_iter)
     return _kept(ps, len(X), func)
 
 

@@ -82,7 +82,10 @@ class Outcome:
         /proc/self/status, falling back to ``getrusage(RUSAGE_SELF).ru_maxrss``).
         It INCLUDES the Python interpreter, every imported library and the
         unpickled arguments (about 30-100 MB before any work); compare with
-        ``start_mb``.  NaN when unknown (crash, timeout).
+        ``start_mb``.  NaN when unknown (crash, timeout).  ``VmHWM`` is used
+        because on Linux ``ru_maxrss`` of a spawned child starts at the
+        PARENT's RSS (kept across fork + exec): with a 1.2 GB parent a 30 MB
+        child reported 1.2 GB.
     start_mb : float
         Resident memory of the child just before the call (interpreter, imports
         of the function's module, arguments loaded); ``peak_mb - start_mb`` is
@@ -267,6 +270,9 @@ class Seconds(float):
         obj = super().__new__(cls, outcome.seconds if outcome.ok else math.nan)
         obj.outcome = outcome
         return obj
+
+    def __reduce__(self):
+        return (type(self), (self.outcome,))
 
     @property
     def seconds(self) -> float:
@@ -504,7 +510,9 @@ def environment_info() -> dict:
     """Machine and library versions for report headers (no heavy imports).
 
     Keys: ``platform``, ``machine``, ``cpu_model``, ``cpu_count``,
-    ``cpu_affinity`` (cores usable by this process), ``ram_gb``, ``python``,
+    ``cpu_affinity`` (cores usable by this process), ``ram_gb``, ``load_avg``
+    (1/5/15-min load averages: timings on a shared machine are only comparable
+    at similar load), ``python``,
     ``versions`` (numpy, scipy, scikit-learn, pymeshlab, cgal, matplotlib;
     None when not installed) and ``timestamp_utc``.
     """
@@ -520,6 +528,10 @@ def environment_info() -> dict:
         affinity = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         affinity = os.cpu_count()
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        load = None
     return {
         "platform": platform.platform(),
         "machine": platform.machine(),
@@ -527,6 +539,7 @@ def environment_info() -> dict:
         "cpu_count": os.cpu_count(),
         "cpu_affinity": affinity,
         "ram_gb": _ram_gb(),
+        "load_avg": load,
         "python": platform.python_version(),
         "versions": versions,
         "timestamp_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

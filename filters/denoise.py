@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._params import Param, resolve_params
-from ._validation import InvalidParameterError, as_normals, as_points, check_spread
+from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
+                          check_spread)
 from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
 
 log = logging.getLogger("pcprep")
@@ -46,7 +47,7 @@ GUARD = 1e-3
 #: neighbour normals tried as starting points of (4.9)
 N_CAND = 8
 #: init passes followed by the candidate selection
-SELECT_PASSES = 3
+SELECT_PASSES = 1
 #: IRLS sub-iterations of the τ step (4.14) per inner iteration
 TAU_IRLS = 3
 
@@ -78,6 +79,9 @@ PARAMS = (
     Param("tol", float, 1e-3, "inner loop stops when the RMS of ‖p^{k+1} − p^k‖ falls "
           "below this", low=0.0, high=10.0, unit="h", advanced=True),
     Param("edge_correction", bool, True, "apply the edge-point correction (4.18)-(4.19)",
+          advanced=True),
+    Param("tv_norm", str, "l2", "norm of the normal differences in (4.4): 'l2' (isotropic, "
+          "rotation invariant) or the thesis' component-wise 'l1'", choices=("l2", "l1"),
           advanced=True),
     Param("k_max", int, 32, "cap on the neighbours kept within the radius", low=4,
           high=512, unit="count", advanced=True),
@@ -158,6 +162,7 @@ class _Ctx:
     lam: float           # λ
     cos_n: float         # cos σ_n
     sn2: float           # σ_n² (radians²)
+    l1: bool = False     # component-wise ℓ1 TV (thesis) instead of ℓ2
     xt: np.ndarray = None  # (3, n) float32 copy of x for gathers
 
     def refresh(self):
@@ -207,7 +212,8 @@ def _eta(res: np.ndarray, psi: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 def _rowsum(a: np.ndarray) -> np.ndarray:
-    return a.sum(axis=1, dtype=np.float64)
+    """Row sums of a (c, k) float32 array (BLAS matrix-vector product), as float64."""
+    return (a @ np.ones(a.shape[1], dtype=a.dtype)).astype(np.float64)
 
 
 def _fidelity(hgt, tau, theta, sh2):
@@ -262,7 +268,8 @@ def _smallest_eigvec(c00, c01, c02, c11, c12, c22):
 
 
 def _tv(ctx: _Ctx, n_i: np.ndarray, nb, tvmask):
-    """Sign-aligned neighbour normals, w_ij and Σ_j w_ij‖n_i − n_j‖₁ (4.4)."""
+    """Sign-aligned neighbour normals, w_ij and Σ_j w_ij‖n_i − n_j‖ (4.4), the
+    norm being ℓ2 (``ctx.l1`` False) or the thesis' component-wise ℓ1."""
     dots = _dot(nb, n_i)
     sgn = np.where(dots < 0, F32(-1.0), F32(1.0))
     al = [nb[a] * sgn for a in range(3)]
@@ -272,11 +279,17 @@ def _tv(ctx: _Ctx, n_i: np.ndarray, nb, tvmask):
     np.exp(w, out=w)
     w *= tvmask
     ni = n_i.astype(F32)
-    l1 = np.abs(ni[:, 0:1] - al[0])
-    l1 += np.abs(ni[:, 1:2] - al[1])
-    l1 += np.abs(ni[:, 2:3] - al[2])
-    l1 *= w
-    return al, w, _rowsum(l1)
+    if ctx.l1:
+        dist = np.abs(ni[:, 0:1] - al[0])
+        dist += np.abs(ni[:, 1:2] - al[1])
+        dist += np.abs(ni[:, 2:3] - al[2])
+    else:
+        dist = np.square(ni[:, 0:1] - al[0])
+        dist += np.square(ni[:, 1:2] - al[1])
+        dist += np.square(ni[:, 2:3] - al[2])
+        np.sqrt(dist, out=dist)
+    dist *= w
+    return al, w, _rowsum(dist)
 
 
 # ---------------------------------------------------------------------------
@@ -325,8 +338,8 @@ def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
         hgt = (d[0][:, None, :] * c32[:, :, 0:1] + d[1][:, None, :] * c32[:, :, 1:2]
                + d[2][:, None, :] * c32[:, :, 2:3])
         th = theta[:, None, :]
-        t0 = (hgt * th).sum(axis=2) / np.maximum(theta.sum(axis=1), 1e-30)[:, None]
-        t = _tau_irls(hgt, t0, th, ctx.sh2, 2).astype(F32)
+        # τ from 0, as in Algorithm 4.1: the search favours planes near p_i
+        t = _tau_irls(hgt, np.zeros(hgt.shape[:2], F32), th, ctx.sh2).astype(F32)
         res = hgt - t[..., None]
         # Welsch loss Σ θ(1 − ψ): (4.3) itself redescends to 0 and would prefer a
         # plane that misses every neighbour
@@ -375,9 +388,9 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
         n_i = normals[s:e]
         t_i = tau[s:e]
         nb = [np.take(nt[a], idx) for a in range(3)]
-        tvmask = valid
-        tvmask[:, 0] = False  # ‖n_i − n_i‖ = 0: the point itself adds nothing
-        cnt = tvmask.sum(axis=1)
+        tvmask = valid.astype(F32)
+        tvmask[:, 0] = 0.0  # ‖n_i − n_i‖ = 0: the point itself adds nothing
+        cnt = _rowsum(tvmask)
         hgt = _dot(d, n_i)
         res = hgt - t_i.astype(F32)[:, None]
         psi = _psi(res, ctx.sh2)
@@ -415,16 +428,21 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
         grad = np.stack([_rowsum(eta * d[a]) for a in range(3)], axis=1)
         gamma = np.where(lip > 0, 1.0 / np.where(lip > 0, lip, 1.0), 0.0)
         half = n_i - gamma[:, None] * grad
-        # proximal step (4.11)-(4.12) on d_ij = n_i − n_j, averaged over j:
-        # n_j + soft(d_ij, t) = n_i − clip(d_ij, −t, t)
+        # proximal step (4.11)-(4.12) on d_ij = n_i − n_j, averaged over j
         thr = w * (gamma * ctx.lam * cnt).astype(F32)[:, None]
         h32 = half.astype(F32)
-        cand = np.empty((e - s, 3))  # noqa: NPY-empty -- every column is written
-        for a in range(3):
-            dd = h32[:, a:a + 1] - al[a]
-            np.minimum(dd, thr, out=dd)
-            np.maximum(dd, -thr, out=dd)
-            cand[:, a] = half[:, a] - _rowsum(dd) / np.maximum(cnt, 1)
+        dd = [h32[:, a:a + 1] - al[a] for a in range(3)]
+        if ctx.l1:  # thesis (4.12): per component, n_j + soft(d) = n_i − clip(d, ±t)
+            for a in range(3):
+                np.minimum(dd[a], thr, out=dd[a])
+                np.maximum(dd[a], -thr, out=dd[a])
+        else:  # vector soft threshold: n_j + soft(d) = n_i − d·min(1, t/‖d‖)
+            ln = np.sqrt(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2])
+            fac = np.minimum(thr / np.maximum(ln, F32(1e-30)), F32(1.0))
+            for a in range(3):
+                dd[a] *= fac
+        cand = half - np.stack([_rowsum(dd[a]) for a in range(3)], axis=1) \
+            / np.maximum(cnt, 1)[:, None]
         norm = np.linalg.norm(cand, axis=1)
         ok = norm > 1e-12
         new_n[s:e] = np.where(ok[:, None], cand / np.where(ok, norm, 1.0)[:, None], n_i)
@@ -487,7 +505,7 @@ def _prepare(points, normals, p: dict, func: str):
     dist, idx = tree.query(x, k=k, workers=-1)
     h = float(dist[:, 1:SPACING_K + 1].mean())
     if not np.isfinite(h) or h <= 0.0:
-        raise InvalidParameterError(f"{func}: every point coincides with its neighbours (h = 0)")
+        raise PointCloudError(f"{func}: every point coincides with its neighbours (h = 0)")
     del dist, tree
     idx = idx.astype(np.int32 if len(x) < 2**31 else np.int64)
     if nrm is not None:
@@ -499,7 +517,8 @@ def _context(x, idx, p: dict) -> _Ctx:
     r = p["sigma_d"] if p["radius"] is None else p["radius"]
     sig_n = np.deg2rad(p["sigma_n_deg"])
     return _Ctx(x=x, idx=idx, r2=r * r, sd2=p["sigma_d"] ** 2, sh2=p["sigma_h"] ** 2,
-                lam=p["lambda_tv"], cos_n=float(np.cos(sig_n)), sn2=float(sig_n ** 2))
+                lam=p["lambda_tv"], cos_n=float(np.cos(sig_n)), sn2=float(sig_n ** 2),
+                l1=p["tv_norm"] == "l1")
 
 
 def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: float = 0.7,
@@ -507,7 +526,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
                   sigma_n_deg: float = 15.0, rho: float = 0.7, delta: float = 1e-4,
                   epsilon: float = 4.0, edge_threshold: float = 0.5, n_iter: int = 14,
                   inner_iter: int = 2, init_iter: int = 3, tol: float = 1e-3,
-                  edge_correction: bool = True, k_max: int = 32,
+                  edge_correction: bool = True, tv_norm: str = "l2", k_max: int = 32,
                   seed: int | None = None) -> DenoiseResult:
     """Denoise a point cloud, preserving sharp edges (thesis ch. 4, Algorithm 4.1).
 
@@ -549,6 +568,10 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
         The inner loop stops when the RMS move ‖p^{k+1} − p^k‖ is below tol·h.
     edge_correction : bool, default=True
         Apply the edge-point correction (4.18)-(4.19).
+    tv_norm : {"l2", "l1"}, default="l2"
+        Norm of each normal difference in the regulariser (4.4): "l2" (isotropic
+        TV, vector soft thresholding) or the thesis' component-wise "l1" (4.12),
+        which depends on the coordinate frame.
     k_max : int, default=32
         Largest number of neighbours kept in N_g (the radius neighbourhood is
         truncated to the k_max nearest).
@@ -584,29 +607,49 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
     * Normals are unoriented inside the filter: each neighbour's normal is
       aligned to the centre's sign (n_j ← sign(n_iᵀn_j) n_j) in (4.4), (4.12)
       and (4.16).
-    * n-step: one proximal-gradient step per inner iteration. The step size γ is
-      1/trace(Σ_j η_j (p_i − p_j)(p_i − p_j)ᵀ), the curvature bound of the
-      IRLS majoriser of E_f, so the gradient step alone cannot increase the
-      majoriser. The proximal map of λΣ_j w_ij‖n_i − n_j‖₁ is approximated by
-      the proximal average: each d_ij = n_i − n_j is soft-thresholded (4.12)
-      at γλK_i w_ij (K_i = number of neighbours, which keeps the fixed point
-      that of the summed regulariser) and n_i is rebuilt as the mean of
+    * n⁰ (4.6)-(4.9): the thesis iterates with τ = 0, i.e. the covariance about
+      the noisy p_i itself, whose own noise then tilts the normal (measured: the
+      iteration made n⁰ worse pass after pass). Here pass 1 is θ-weighted PCA
+      about the weighted mean (ω = θ), later passes use the covariance about
+      p_i − τ_i n_i with τ_i from (4.14), i.e. (4.9) with the offset of (4.5).
+      Near edges the eigen-iteration converges to the blended normal (a
+      stationary point of (4.3)), so after pass 1 every point also tries the
+      normals of 8 neighbours spread over its list and keeps the one with the
+      lowest robust loss Σ_j θ(1 − ψ) (τ by (4.14) from 0). (4.3) itself is not
+      usable for that choice: |r|ψ(r) redescends to 0, so (4.3) is smallest for
+      a plane that misses every neighbour.
+    * Inner loop at fixed positions: each pass takes the IRLS τ step (4.14)
+      (one sweep) at the current normals, then one proximal-gradient normal
+      step (4.10)-(4.12) at the new τ. Step size γ = 1/trace(Σ_j η_j
+      (p_i − p_j)(p_i − p_j)ᵀ), the curvature bound of the IRLS majoriser of
+      E_f. The proximal map of λΣ_j w_ij‖n_i − n_j‖₁ is approximated by the
+      proximal average: each d_ij = n_i − n_j is soft-thresholded (4.12) at
+      γλK_i w_ij (K_i = number of neighbours, which keeps the fixed point of
+      the summed regulariser) and n_i is rebuilt as the mean of
       n_j + soft(d_ij), then renormalised.
-    * Descent safeguards: the n- and τ-steps keep a point's previous value when
-      its own energy (neighbours fixed) would rise; the inner loop also checks
-      the total energy (4.5) and returns to the previous state, ending the
-      inner loop, if it rose (parallel updates of coupled TV terms can do that).
-      Hence ``energy_history`` never increases within an outer iteration.
-    * Inner loop: positions stay fixed while (n, τ) alternate; the tentative
-      positions p − τn are compared between inner iterations for the stopping
-      rule ‖p^{k+1} − p^k‖ < tol·h (RMS over points); the move (4.15) is applied
-      once, after the inner loop. τ restarts from 0 every outer iteration.
+    * Descent: the τ step keeps a point's previous τ when its fidelity would
+      rise; a pass whose proposal raised the total energy (4.5) is undone and
+      ends the inner loop (parallel updates of the coupled TV terms can do
+      that). Hence ``energy_history`` never increases within an outer
+      iteration. The loop also ends when the RMS change of the tentative
+      positions p − τn is below tol·h (the thesis' ‖p^{k+1} − p^k‖² < ε); the
+      move (4.15) is applied once, after the inner loop; τ restarts at 0 in
+      every outer iteration.
     * One k-NN query (k_max neighbours of the noisy input) serves every
-      iteration; the radius test d ≤ r and the weights use the current
+      iteration; the radius test d ≤ r and all weights use the current
       positions. Points move by well under r, so the lists stay valid; a
       re-query per iteration would cost ~6-12 s per pass at 1M points.
+      Neighbour arrays are float32 (in units of h, so ~1e-5 h resolution for
+      clouds up to ~10⁶ points); per-point state and sums are float64.
+    * Regulariser norm: (4.4) sums the component-wise ℓ1 norm of n_i − n_j, and
+      (4.12) soft-thresholds each component. That depends on the coordinate
+      axes, so the output would change when the cloud is rotated. The default
+      ``tv_norm="l2"`` uses ‖n_i − n_j‖₂ (still ℓ1 over the pairs, so sparse
+      normal jumps survive) and the vector soft threshold; "l1" keeps the
+      thesis' form.
     * Edge correction (4.18)-(4.19): the "opposite surface" point is the nearest
-      neighbour whose normal differs from n_i by more than σ_n.
+      neighbour whose normal differs from n_i by more than σ_n; all edge points
+      are corrected from the same (pre-correction) positions.
 
     References
     ----------
@@ -628,12 +671,13 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
         lambda_tv=lambda_tv, sigma_h=sigma_h, sigma_d=sigma_d, radius=radius,
         sigma_n_deg=sigma_n_deg, rho=rho, delta=delta, epsilon=epsilon,
         edge_threshold=edge_threshold, n_iter=n_iter, inner_iter=inner_iter,
-        init_iter=init_iter, tol=tol, edge_correction=edge_correction, k_max=k_max,
-        seed=seed), func)
+        init_iter=init_iter, tol=tol, edge_correction=edge_correction, tv_norm=tv_norm,
+        k_max=k_max, seed=seed), func)
     x, hint, centre, h, idx, perm = _prepare(points, normals, p, func)
     n = len(x)
     x0 = x.copy()
     ctx = _context(x, idx, p)
+    ctx.refresh()
     log.info("%s: n=%d h=%.4g k_max=%d", func, n, h, idx.shape[1])
 
     nrm = _init_normals(ctx, p["init_iter"], N_CAND)
@@ -642,42 +686,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
     n_corr = 0
     eps2 = p["epsilon"] ** 2
     for j in range(p["n_iter"]):
-        tau = np.zeros(n)
-        hist_j = []
-        e_prev = None
-        prev = (nrm, tau)
-        for k in range(p["inner_iter"] + 1):
-            last = k == p["inner_iter"]
-            e_i, n_next, t_next, vn_k = _inner_pass(ctx, nrm, tau, propose=not last,
-                                                    vn=last)
-            e_tot = float(e_i.sum())
-            if e_prev is not None and e_tot > e_prev:
-                nrm, tau = prev  # the parallel step raised (4.5): undo, stop
-                if not last:
-                    _, _, _, vn_k = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
-                else:
-                    _, _, _, vn_k = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
-                vn = vn_k
-                break
-            hist_j.append(e_tot)
-            if last:
-                vn = vn_k
-                break
-            move = np.sqrt(np.mean(np.square(t_next - tau)))
-            prev, e_prev = (nrm, tau), e_tot
-            nrm, tau = n_next, t_next
-            if move < p["tol"]:
-                # converged: one more pass gives the energy of the new state and V_n
-                e_i, _, _, vn_k = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
-                e_tot = float(e_i.sum())
-                if e_tot > e_prev:
-                    nrm, tau = prev
-                    _, _, _, vn_k = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
-                else:
-                    hist_j.append(e_tot)
-                vn = vn_k
-                break
-        history.append(tuple(hist_j))
+        nrm, tau, vn, hist_j = _inner_loop(ctx, nrm, p["inner_iter"], p["tol"])
+        history.append(hist_j)
         # position update (4.15), sign corrected, bounded by ε
         cand = ctx.x - tau[:, None] * nrm
         far = np.square(cand - x0).sum(axis=1) > eps2
@@ -686,21 +696,64 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
         edge = vn < p["edge_threshold"]
         if p["edge_correction"]:
             n_corr = _edge_correct(ctx, nrm, edge, p["rho"], p["delta"])
+        ctx.refresh()
         log.info("%s: iteration %d/%d energy %.6g, %d edge points, %d corrected",
-                 func, j + 1, p["n_iter"], hist_j[-1] if hist_j else float("nan"),
-                 int(edge.sum()), n_corr)
+                 func, j + 1, p["n_iter"], hist_j[-1], int(edge.sum()), n_corr)
 
-    out_n = nrm.copy()
-    if hint is not None:
+    inv = np.empty(n, dtype=np.int64)  # noqa: NPY-empty -- a permutation fills it
+    inv[perm] = np.arange(n)
+    out_n = nrm[inv]
+    out_p = ctx.x[inv] * h + centre
+    if normals is not None:
+        hint = as_normals(normals, n, func=func)
         flip = np.einsum("ij,ij->i", out_n, hint) < 0
         out_n[flip] *= -1.0
-    out_p = ctx.x * h + centre
-    if hint is None:
+    else:
         out_n = orient_normals_mst(out_p, out_n, k=10)
+    vn = vn[inv]
     edge = vn < p["edge_threshold"]
     return DenoiseResult(points=out_p, normals=out_n, edge_mask=edge, edge_score=vn,
                          h=h, energy_history=tuple(history), n_iter_run=p["n_iter"],
                          n_corrected=n_corr)
+
+
+def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float):
+    """Alternate τ and n steps at fixed positions (Algorithm 4.1, inner loop).
+
+    τ starts at 0. Every pass returns the energy of the current state and a
+    proposal; a proposal that raised the total energy (4.5) is undone and ends
+    the loop. The loop also ends when the RMS change of the tentative positions
+    p − τn falls below ``tol``. Returns normals, τ, V_n and the energy history.
+    """
+    n = len(ctx.x)
+    tau = np.zeros(n)
+    hist = []
+    prev = None
+    for k in range(inner_iter + 1):
+        last = k == inner_iter
+        e_i, n_next, t_next, vn = _inner_pass(ctx, nrm, tau, propose=not last, vn=last)
+        e_tot = float(e_i.sum())
+        if hist and e_tot > hist[-1]:
+            nrm, tau = prev  # the parallel step raised (4.5): undo it and stop
+            _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            break
+        hist.append(e_tot)
+        if last:
+            break
+        step = (ctx.x - t_next[:, None] * n_next) - (ctx.x - tau[:, None] * nrm)
+        move = float(np.sqrt(np.mean(np.square(step).sum(axis=1))))
+        prev = (nrm, tau)
+        nrm, tau = n_next, t_next
+        if move < tol:
+            e_i, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            e_tot = float(e_i.sum())
+            if e_tot > hist[-1]:
+                nrm, tau = prev
+                _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            else:
+                hist.append(e_tot)
+            break
+    return nrm, tau, vn, tuple(hist)
 
 
 def energy_l1_tv(points, normals, tau=None, *, lambda_tv: float = 0.2,

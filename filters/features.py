@@ -3,6 +3,12 @@ features.py
 -----------
 Sharp-feature and hole-boundary detection by dictionary learning and sparse
 coding of multi-scale covariance features (thesis ch.7, eqs (7.1)-(7.13)).
+
+Pipeline (both detectors): covariance features of every point at ``n_scales``
+neighbourhood sizes from ONE sorted k-NN query (prefix sums over the sorted
+neighbours), concatenated (§7.3.5); columns standardised; a K-SVD dictionary
+of ``n_atoms`` atoms (§7.3.2, Alg. 3.3); every point coded on it; a per-point
+code-length score; a threshold (Otsu by default, or β·max as in (7.10)).
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._params import Param, resolve_params
+from . import sparse
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
 from .neighbors import CHUNK, average_spacing, build_tree, centered, knn
 
@@ -168,9 +175,8 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
         return hi
     uniq = np.unique(v)
     if len(uniq) <= bins:
-        centers = uniq
-        counts = np.searchsorted(np.sort(v), uniq, side="right")
-        counts = np.diff(np.concatenate([[0], counts])).astype(np.float64)
+        centers, counts = np.unique(v, return_counts=True)
+        counts = counts.astype(np.float64)
         cuts = 0.5 * (uniq[:-1] + uniq[1:])
     else:
         counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
@@ -187,3 +193,315 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     between = np.zeros_like(w0)
     between[ok] = (mu_t * w0[ok] - mu0[ok]) ** 2 / (w0[ok] * w1[ok])
     return float(cuts[int(np.argmax(between))])
+
+
+# ---------------------------------------------------------------------------
+# public detectors
+# ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DetectionResult:
+    """Result of ``detect_sharp_features`` / ``detect_hole_boundaries``.
+
+    Attributes
+    ----------
+    mask : (n,) bool
+        Detected points.
+    score : (n,) float
+        Per-point code-length score (higher = rarer); ``mask = score > threshold``.
+    threshold : float
+        The threshold T applied to ``score``.
+    quality : (n,) float
+        ``mask`` as 1.0 / 0.0 (the MeshSet vertex quality written by the bridge).
+    nnz : (n,) int
+        Number of atoms in each point's code, ``f(α_j)`` of (7.8)-(7.9).
+    residual : (n,) float
+        ``‖z_j − α_j D‖₂`` of each standardised feature vector.
+    scales : (s,) int
+        Neighbourhood sizes used (each counts the point itself).
+    dictionary : (n_atoms, d) float
+        The learned K-SVD dictionary (rows are atoms).
+    h : float
+        Average spacing (mean distance to the 6 nearest neighbours).
+    beta : float or None
+        β of (7.10) when given; None when the threshold came from Otsu.
+    """
+
+    mask: np.ndarray
+    score: np.ndarray
+    threshold: float
+    quality: np.ndarray
+    nnz: np.ndarray
+    residual: np.ndarray
+    scales: np.ndarray
+    dictionary: np.ndarray
+    h: float
+    beta: float | None
+
+
+def _common_params(k_min: int, k_max: int, tol: float, score: str) -> tuple[Param, ...]:
+    return (
+        Param("n_scales", int, 10, "Number of neighbourhood sizes whose features are "
+              "concatenated (thesis §7.3.5 uses 10).", low=1, high=32, unit="count"),
+        Param("k_min", int, k_min, "Smallest neighbourhood size (points, self included).",
+              low=5, high=500, unit="count"),
+        Param("k_max", int, k_max, "Largest neighbourhood size (points, self included); "
+              "one k-NN query of this size serves every scale.", low=5, high=500,
+              unit="count"),
+        Param("n_atoms", int, 100, "Dictionary size S (thesis: 100).", low=2, high=1000,
+              unit="count"),
+        Param("coder", str, "omp", "Coding of every point on the learned dictionary: "
+              "'omp' (OMP to the residual target tol; fast) or 'lasso_lars' (the "
+              "thesis' Lasso (3.7) with penalty alpha, by LARS).",
+              choices=("omp", "lasso_lars")),
+        Param("alpha", float, 0.01, "ℓ1 penalty λ of the Lasso coder (thesis: 0.01); "
+              "used when coder='lasso_lars'.", low=0.0, high=100.0, closed="right",
+              advanced=True),
+        Param("tol", float, tol, "OMP residual target per feature: a point's coding "
+              "stops when ‖z − αD‖² ≤ tol·d (standardised features); used when "
+              "coder='omp'.", low=0.0, high=10.0, closed="right", advanced=True),
+        Param("score", str, score, "Per-point score: 'count' = number of atoms "
+              "(thesis (7.8)) plus the residual as tie-break, 'l1' = ‖α‖₁ plus the "
+              "residual.", choices=("count", "l1")),
+        Param("beta", float, None, "Rarity level β of (7.10): T = β·max(score). "
+              "Empty = automatic threshold by Otsu's method (Tran et al. 2014).",
+              low=0.0, high=1.0, optional=True),
+        Param("max_iter", int, 10, "K-SVD iterations.", low=1, high=200, unit="count",
+              advanced=True),
+        Param("max_train", int, 4000, "At most this many points (seeded subsample) "
+              "train the dictionary; all points are then coded.", low=100,
+              high=10_000_000, unit="count", advanced=True),
+        Param("seed", int, None, "Seed of the training subsample and of the K-SVD "
+              "initialisation.", low=0, optional=True),
+    )
+
+
+#: parameters of ``detect_sharp_features``
+PARAMS_SHARP = _common_params(8, 40, 0.1, "count")
+#: parameters of ``detect_hole_boundaries``
+PARAMS_HOLES = _common_params(10, 60, 0.3, "l1")
+#: alias used by the bridge convention (one ``PARAMS`` per module)
+PARAMS = PARAMS_SHARP
+
+
+def _standardise(F: np.ndarray, robust: bool) -> np.ndarray:
+    """Column standardisation of the feature matrix (see the detectors' Notes)."""
+    if robust:
+        med = np.median(F, axis=0)
+        scale = 1.4826 * np.median(np.abs(F - med), axis=0)
+        std = F.std(axis=0)
+        scale = np.where(scale > 1e-12 * np.maximum(std, 1e-300), scale, std)
+        return (F - med) / np.where(scale > 0, scale, 1.0)
+    mu = F.mean(axis=0)
+    sd = F.std(axis=0)
+    return (F - mu) / np.where(sd > 1e-12 * np.maximum(np.abs(mu), 1e-300), sd, 1.0)
+
+
+def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
+    """Shared body of the two detectors (parameters already resolved)."""
+    if p["k_min"] > p["k_max"]:
+        raise InvalidParameterError(
+            f"{func}: k_min must be <= k_max, got k_min={p['k_min']}, k_max={p['k_max']}")
+    pts = as_points(points, func=func, min_points=p["k_max"] + 1)
+    if normals is not None:
+        as_normals(normals, len(pts), func=func)
+    check_spread(pts, func=func)
+    pts, _ = centered(pts)
+    tree = build_tree(pts)
+    h = average_spacing(pts, tree=tree)
+    ks = scale_sizes(p["k_min"], p["k_max"], p["n_scales"])
+    log.info("%s: n=%d h=%.4g scales=%s", func, len(pts), h, ks.tolist())
+    F = multiscale_features(pts, ks, kind=kind, h=h, tree=tree)
+    if kind == "hole":
+        # orient so that larger = more boundary-like (thesis §7.3.1: epv and
+        # density drop at a border, the centroid shift grows)
+        F[:, 0::3] *= -1.0
+        F[:, 1::3] *= -1.0
+    Z = _standardise(F, robust=(kind == "hole"))
+    if kind == "hole":
+        Z = np.maximum(Z, 0.0)   # only deviations toward a border count
+    d = Z.shape[1]
+    n_atoms = p["n_atoms"]
+    L = max(1, min(d, n_atoms) // 10)
+    res = sparse.ksvd(Z, n_atoms, n_nonzero_coefs=L, max_iter=p["max_iter"],
+                      max_train=p["max_train"], seed=p["seed"])
+    D = res.dictionary
+    if p["coder"] == "omp":
+        codes = sparse.omp(Z, D, tol=p["tol"] * d)
+    else:
+        codes = sparse.lasso_lars(Z, D, alpha=p["alpha"])
+    nnz, resid = sparse.code_length(codes, Z, D)
+    tie = resid / (1.0 + resid)            # in [0, 1): orders points of equal count
+    if p["score"] == "count":
+        score = nnz + tie
+    else:
+        codes = codes.tocsr()
+        l1 = np.asarray(abs(codes).sum(axis=1)).ravel()
+        score = l1 + resid
+    beta = p["beta"]
+    if beta is None:
+        T = otsu_threshold(score)
+    else:
+        T = float(beta * score.max())      # (7.10)
+    mask = score > T                       # (7.11)
+    log.info("%s: threshold %.4g selects %d of %d points", func, T, int(mask.sum()),
+             len(pts))
+    return DetectionResult(mask=mask, score=score, threshold=float(T),
+                           quality=mask.astype(np.float64), nnz=nnz, residual=resid,
+                           scales=ks, dictionary=D, h=float(h), beta=beta)
+
+
+def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: int = 8,
+                          k_max: int = 40, n_atoms: int = 100, coder: str = "omp",
+                          alpha: float = 0.01, tol: float = 0.1, score: str = "count",
+                          beta: float | None = None, max_iter: int = 10,
+                          max_train: int = 4000, seed: int | None = None
+                          ) -> DetectionResult:
+    """Detect points on sharp features (edges, corners) by the code length of
+    their multi-scale covariance features on a learned dictionary (thesis §7.3).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The cloud.
+    normals : (n, 3) float, optional
+        Accepted for the filter interface and validated, but not used: the
+        normal of (7.4) is the PCA normal of each scale's neighbourhood.
+    n_scales : int, default=10
+        Neighbourhood sizes, geometrically spaced from ``k_min`` to ``k_max``.
+    k_min, k_max : int, default=8, 40
+        Smallest and largest neighbourhood (points, the point itself included).
+    n_atoms : int, default=100
+        Dictionary size S (thesis §7.4.1).
+    coder : {"omp", "lasso_lars"}, default="omp"
+        How every point is coded on the learned dictionary.
+    alpha : float, default=0.01
+        Lasso penalty λ (thesis §7.4.1), for ``coder="lasso_lars"``.
+    tol : float, default=0.1
+        OMP squared-residual target per feature, for ``coder="omp"``.
+    score : {"count", "l1"}, default="count"
+        ``"count"``: f = ‖α_j‖₀ (7.8)-(7.9) plus ``r/(1+r)`` of the residual r as a
+        tie-break in [0, 1); ``"l1"``: ‖α_j‖₁ + r.
+    beta : float in [0, 1], optional
+        T = β·max f (7.10).  None (default): Otsu's threshold on f.
+    max_iter, max_train : int
+        K-SVD iterations and training-subsample size.
+    seed : int, optional
+        Seeds the K-SVD subsample and initialisation.
+
+    Returns
+    -------
+    DetectionResult
+        ``mask`` = f > T (7.11), ``score`` = f.
+
+    Raises
+    ------
+    PointCloudError
+        Empty cloud, NaN/Inf, fewer than ``k_max + 1`` points, collinear points.
+    InvalidParameterError
+        A parameter out of range, or ``k_min > k_max``.
+
+    Notes
+    -----
+    Features per scale (7.1)-(7.4): F = (λ0/h², λ0/λ2, σ = λ0/Σλ, Pd/h), with
+    Pd = |(p_i − p̄)·n| and n the eigenvector of λ0; concatenated over the
+    scales (§7.3.5), d = 4·n_scales.  Deviations from the thesis and why:
+
+    * Weights of (7.1): uniform.  The printed weight exp(−d²/k²) mixes a length
+      with a count; with lengths in h and k ≥ 8 it lies within a few percent of
+      1, and uniform weights let all scales come from one sorted k-NN query by
+      prefix sums (O(n·k_max) instead of ten queries).
+    * Features are standardised per column (zero mean, unit variance) before
+      K-SVD: the raw columns differ by orders of magnitude (λ0 in h², ratios
+      in [0, 1]) and would otherwise let one column own the dictionary.
+    * Coding: the dictionary is learned by K-SVD (OMP with ⌈d/10⌉ atoms per
+      training signal) on a seeded subsample of ``max_train`` points; every
+      point is then coded by OMP until its squared residual is at most
+      ``tol·d``, so the atom count is the number of atoms the point *needs*,
+      the thesis' notion of rarity (§7.3.3).  ``coder="lasso_lars"`` gives the
+      thesis' Lasso coding with λ = ``alpha``; it is several times slower.
+    * Threshold: Otsu by default, as the thesis suggests after Tran et al.
+      2014 (§7.4.1); ``beta`` restores (7.10).
+
+    References
+    ----------
+    Tran et al. 2014, "Automatic sharp feature detection", Otsu threshold on the
+    projected distance.  Pauly, Keiser & Gross 2003 (surface variation).
+
+    Examples
+    --------
+    >>> from baselines.datasets import make_shape
+    >>> s = make_shape("cube", n=4000, seed=0)
+    >>> r = detect_sharp_features(s.points, seed=0)
+    >>> r.mask.shape == (4000,) and 0 < r.mask.sum() < 4000
+    True
+    """
+    p = resolve_params(PARAMS_SHARP, dict(
+        n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
+        max_train=max_train, seed=seed), "detect_sharp_features")
+    return _detect(points, normals, p, "detect_sharp_features", "sharp")
+
+
+def detect_hole_boundaries(points, normals=None, *, n_scales: int = 10, k_min: int = 10,
+                           k_max: int = 60, n_atoms: int = 100, coder: str = "omp",
+                           alpha: float = 0.01, tol: float = 0.3, score: str = "l1",
+                           beta: float | None = None, max_iter: int = 10,
+                           max_train: int = 4000, seed: int | None = None
+                           ) -> DetectionResult:
+    """Detect points on hole rims and open borders by the rarity of the codes
+    of their multi-scale border features (thesis §7.3.1, §7.3.4).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    normals : (n, 3) float, optional
+        Validated, not used (the PCA normal of each scale is used).
+    n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
+        As in ``detect_sharp_features`` (defaults k_min=10, k_max=60, tol=0.3).
+    score : {"l1", "count"}, default="l1"
+        ``"l1"``: ‖α_j‖₁ + residual (default, see Notes); ``"count"``: the atom
+        count of (7.8) with the residual tie-break.
+    beta : float in [0, 1], optional
+        T = β·max(score); None (default) = Otsu.
+
+    Returns
+    -------
+    DetectionResult
+
+    Raises
+    ------
+    PointCloudError, InvalidParameterError
+        As ``detect_sharp_features``.
+
+    Notes
+    -----
+    Features per scale (7.5)-(7.7): epv = |λ2 − 2λ1|/λ2, density
+    k h²/(π r²), centroid shift ‖p̄ − p_i‖_t / r.  Deviations and why:
+
+    * The density (7.6) is printed k/(p_i·r²), a typo for k/(π r²).  Here r is
+      the distance to the k-th neighbour (the radius of the scale's
+      neighbourhood, free from the sorted query) instead of the largest
+      distance to the centroid; at a rim both grow by about √2.
+    * The centroid shift is taken in the tangent plane (component orthogonal
+      to the scale's PCA normal) and divided by r: at a rim the shift is
+      tangential anyway, while at a sharp crease the shift points along the
+      normal; this keeps creases from being called holes.
+    * The rule printed in (7.12)-(7.13), f < β·min f, selects nothing for
+      β ≤ 1 (f ≥ min f always).  We keep its idea -- boundary points are the
+      rare codes -- as follows: each column is oriented so that larger means
+      more border-like (epv and density drop at a border, the shift grows,
+      §7.3.1), robustly standardised (median, 1.4826·MAD) and clipped at 0, so
+      the bulk of interior points have near-zero signals; a point's rarity is
+      then the ℓ1 size of its code on the K-SVD dictionary, ‖α_j‖₁ (the
+      ℓ1 code length of (3.13)), plus its residual, thresholded like (7.10) --
+      by Otsu, or T = β·max.  The atom count alone does not separate rims
+      (measured ROC AUC ≈ 0.45-0.5 on holed spheres): interior and rim vectors
+      need similar numbers of atoms; the rims need *larger* coefficients.
+      ``score="count"`` keeps the thesis' count reachable.
+    """
+    p = resolve_params(PARAMS_HOLES, dict(
+        n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
+        max_train=max_train, seed=seed), "detect_hole_boundaries")
+    return _detect(points, normals, p, "detect_hole_boundaries", "hole")

@@ -28,6 +28,8 @@ log = logging.getLogger("pcprep")
 
 #: problems solved together (memory: CHUNK·m² floats for the Gram stack)
 CHUNK = 32_768
+#: sweeps after which the exact active-set step is tried (then every 64th)
+_CHECKS = frozenset((2, 4, 8, 16, 32))
 
 
 @dataclass(frozen=True)
@@ -57,12 +59,41 @@ def _soft(z: np.ndarray, t) -> np.ndarray:
     return np.sign(z) * np.maximum(np.abs(z) - t, 0.0)
 
 
-def _kkt_polish(G, c, lam, coef, kkt_tol):
-    """Exact solve on the support/sign pattern of ``coef``; returns the new
-    coefficients and a mask of the problems whose KKT conditions hold."""
+def _kkt_polish(G, c, lam, coef, kkt_tol, drop_one_max=0):
+    """Exact solve on the support/sign pattern of ``coef`` and on two pruned
+    supports (coordinate descent creeps slowly toward zero on coordinates that
+    leave the support); returns the certified coefficients (``coef`` elsewhere)
+    and the mask of the problems whose KKT conditions hold."""
     n, m = c.shape
-    act = coef != 0.0
-    s = np.sign(coef)
+    mag = np.abs(coef) * np.sqrt(np.einsum("njj->nj", G))
+    top = mag.max(axis=1, keepdims=True)
+    out, good = _kkt_try(G, c, lam, coef, coef != 0.0, kkt_tol)
+    for rel in (1e-6, 1e-3, 3e-2):
+        if good.all():
+            break
+        act = (mag > rel * top) & ~good[:, None]
+        a, ok = _kkt_try(G, c, lam, coef, act, kkt_tol)
+        out = np.where(ok[:, None], a, out)
+        good |= ok
+    if not good.all() and (~good).sum() <= drop_one_max:
+        # support one too large (common when m > d and λ is small): drop each
+        # coordinate in turn, on the few problems still open
+        base = coef != 0.0
+        for j in range(m):
+            if good.all():
+                break
+            act = base & ~good[:, None]
+            act[:, j] = False
+            a, ok = _kkt_try(G, c, lam, coef, act, kkt_tol)
+            ok &= ~good & base[:, j]
+            out = np.where(ok[:, None], a, out)
+            good |= ok
+    return out, good
+
+
+def _kkt_try(G, c, lam, coef, act, kkt_tol):
+    n, m = c.shape
+    s = np.sign(coef) * act
     eye = np.eye(m)
     # masked system: G on the active block, identity elsewhere
     M = np.where(act[:, :, None] & act[:, None, :], G, 0.0) + eye * (~act)[:, :, None]
@@ -73,7 +104,7 @@ def _kkt_polish(G, c, lam, coef, kkt_tol):
     M = M + ridge[:, None, None] * eye * act[:, :, None]
     a = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
     scale = np.maximum(lam, 1e-300)[:, None]
-    grad = c - np.einsum("njk,nk->nj", G, a)
+    grad = c - np.matmul(G, a[:, :, None])[:, :, 0]
     sign_ok = np.where(act, a * s > 0, True).all(axis=1)
     inact_ok = np.where(act, True, np.abs(grad) <= scale * (1.0 + kkt_tol)).all(axis=1)
     # stationarity on the support (fails where the block was singular)
@@ -83,7 +114,7 @@ def _kkt_polish(G, c, lam, coef, kkt_tol):
     return np.where(good[:, None], a, coef), good
 
 
-def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol, check_every=4):
+def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol):
     n, m = c.shape
     diag = np.einsum("njj->nj", G).copy()
     inv = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
@@ -105,9 +136,10 @@ def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol, check_every=4):
             gl -= Gl[:, :, j] * delta[:, None]
             np.maximum(change, np.abs(delta) * sdl[:, j], out=change)
         done = change <= stop
-        if sweeps % check_every == 0 or sweeps == max_iter:
+        if sweeps in _CHECKS or sweeps % 64 == 0 or sweeps == max_iter:
             # exact solve on the current support; certified problems are finished
-            exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol)
+            exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol,
+                                      drop_one_max=n // 20 if sweeps >= 32 else 0)
             al = np.where(good[:, None], exact, al)
             done |= good
         if done.any():
@@ -120,7 +152,7 @@ def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol, check_every=4):
             Gl, cl, gl, al = Gl[keep], cl[keep], gl[keep], al[keep]
             laml, invl, dl, sdl, stop = laml[keep], invl[keep], dl[keep], sdl[keep], stop[keep]
     if len(live):
-        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol)
+        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol, drop_one_max=len(live))
         coef[live] = exact
         converged[live[good]] = True
     return coef, converged, sweeps
@@ -189,10 +221,14 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
         raise InvalidParameterError(
             f"lasso_batched: need x (n, d) and D (n, d, m), got {x.shape} and {D.shape}")
     n, d, m = D.shape
-    lam = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n,)).copy() \
-        if np.ndim(alpha) in (0, 1) else None
-    if lam is None or lam.shape != (n,):
-        raise InvalidParameterError("lasso_batched: alpha must be a scalar or shape (n,)")
+    lam = np.asarray(alpha, dtype=np.float64)
+    if lam.ndim == 0:
+        lam = np.full(n, float(lam))
+    elif lam.shape != (n,):
+        raise InvalidParameterError(
+            f"lasso_batched: alpha must be a scalar or shape ({n},), got {lam.shape}")
+    else:
+        lam = lam.copy()
     if not (np.isfinite(x).all() and np.isfinite(D).all() and np.isfinite(lam).all()):
         raise InvalidParameterError("lasso_batched: x, D and alpha must be finite")
     if (lam < 0).any():
@@ -203,8 +239,9 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
         Dc = D[s:e]
-        G = np.einsum("ndi,ndj->nij", Dc, Dc)
-        c = np.einsum("ndi,nd->ni", Dc, x[s:e])
+        Dt = Dc.transpose(0, 2, 1)
+        G = np.matmul(Dt, Dc)
+        c = np.matmul(Dt, x[s:e, :, None])[:, :, 0]
         a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol, kkt_tol)
         coef[s:e], conv[s:e] = a, ok
         n_iter = max(n_iter, it)

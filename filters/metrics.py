@@ -52,7 +52,8 @@ def mad_degrees(n_true, n_est) -> float:
     a = _unit_rows(n_true, func, "n_true")
     b = _unit_rows(n_est, func, "n_est")
     if a.shape != b.shape:
-        raise PointCloudError(f"{func}: n_true has shape {a.shape} but n_est has {b.shape}")
+        raise PointCloudError(
+            f"{func}: n_true has shape {a.shape} but n_est has {b.shape}")
     dot = np.abs(np.einsum("ij,ij->i", a, b))
     return float(np.degrees(np.arccos(np.clip(dot, 0.0, 1.0))).mean())
 
@@ -64,7 +65,13 @@ def _two_clouds(p_true, p_est, func):
     return a - c, b - c
 
 
-def mse_symmetric(p_true, p_est) -> float:
+def bbox_diagonal(points) -> float:
+    """Length of the axis-aligned bounding-box diagonal of ``points`` (n, 3)."""
+    p = as_points(points, func="bbox_diagonal")
+    return float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+
+
+def mse_symmetric(p_true, p_est, *, unit_diagonal: bool = False) -> float:
     """Symmetric mean squared nearest-neighbour distance, thesis (4.21).
 
     Parameters
@@ -73,18 +80,33 @@ def mse_symmetric(p_true, p_est) -> float:
         Ground-truth points.
     p_est : (n2, 3) float
         Processed points; ``n2`` may differ from ``n1``.
+    unit_diagonal : bool, default=False
+        Divide by the squared bounding-box diagonal of ``p_true``, i.e. report the
+        MSE of both clouds scaled so that the ground truth has a unit diagonal
+        (the convention of ALGORITHMS.md for comparing models).
 
     Returns
     -------
     mse : float
-        ½ mean_i min_j ‖p_i − q_j‖² + ½ mean_j min_i ‖q_j − p_i‖², in squared
-        input units (scale models to unit bounding-box diagonal to compare
-        across models).
+        ½ mean_i min_j ‖p_i − q_j‖² + ½ mean_j min_i ‖q_j − p_i‖², in
+        squared input units (scale models to unit bounding-box diagonal to
+        compare across models).
+
+    Examples
+    --------
+    >>> round(mse_symmetric([[0, 0, 0], [1, 0, 0]], [[0, 0, 0.1], [1, 0, 0]]), 12)
+    0.005
     """
     a, b = _two_clouds(p_true, p_est, "mse_symmetric")
     d_ab, _ = knn(b, 1, query=a)
     d_ba, _ = knn(a, 1, query=b)
-    return float(0.5 * np.mean(d_ab[:, 0] ** 2) + 0.5 * np.mean(d_ba[:, 0] ** 2))
+    mse = 0.5 * np.mean(d_ab[:, 0] ** 2) + 0.5 * np.mean(d_ba[:, 0] ** 2)
+    if unit_diagonal:
+        diag = float(np.linalg.norm(a.max(axis=0) - a.min(axis=0)))
+        if diag <= 0.0:
+            raise PointCloudError("mse_symmetric: p_true has a zero bounding box")
+        mse /= diag * diag
+    return float(mse)
 
 
 def snr_db(p_true, p_est) -> float:
@@ -236,7 +258,8 @@ def roc_auc(scores, truth) -> float:
         raise PointCloudError(f"{func}: scores contains NaN or Inf")
     t = _as_mask(truth, func, "truth")
     if t.shape != s.shape:
-        raise PointCloudError(f"{func}: scores has {s.size} entries but truth has {t.size}")
+        raise PointCloudError(
+            f"{func}: scores has {s.size} entries but truth has {t.size}")
     n_pos = int(t.sum())
     n_neg = t.size - n_pos
     if n_pos == 0 or n_neg == 0:

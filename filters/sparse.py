@@ -358,7 +358,9 @@ class KSVDResult:
     dictionary : (n_atoms, d) float
         Learned atoms, unit-norm rows.
     codes : (m, n_atoms) scipy.sparse.csr_matrix
-        OMP codes of *all* the signals on the final dictionary.
+        OMP codes of *all* the signals on the final dictionary (of the
+        training signals only, ``(len(train_idx), n_atoms)``, when
+        ``code_all=False``).
     errors : (n_iter,) float
         Root-mean-square residual of the training signals after each iteration's
         coding stage.
@@ -424,7 +426,8 @@ def _update_atoms(Xt, D, sup, coef, rng):
 
 
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
-         max_iter: int = 10, max_train: int = 20_000, seed: int | None = None) -> KSVDResult:
+         max_iter: int = 10, max_train: int = 20_000, seed: int | None = None,
+         code_all: bool = True) -> KSVDResult:
     """K-SVD dictionary learning (Aharon, Elad & Bruckstein 2006; thesis Alg. 3.3).
 
     Parameters
@@ -445,6 +448,10 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         dictionary; all ``m`` signals are then coded on it.
     seed : int, optional
         Seeds the subsample and the initial dictionary.
+    code_all : bool, default=True
+        Code all ``m`` signals on the final dictionary; when False, ``codes``
+        holds the training signals' codes only (rows in ``train_idx`` order),
+        for callers that code with another solver afterwards.
 
     Returns
     -------
@@ -507,5 +514,5 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         n_unused = _update_atoms(Xt, D, sup, coef, rng)
         log.info("ksvd: iteration %d, rms residual %.4g, %d unused atom(s) replaced",
                  it + 1, errors[-1], n_unused)
-    codes = omp(X, D, n_nonzero_coefs=L, tol=tol)
+    codes = omp(X if code_all else Xt, D, n_nonzero_coefs=L, tol=tol)
     return KSVDResult(dictionary=D, codes=codes, errors=np.asarray(errors), train_idx=train_idx)

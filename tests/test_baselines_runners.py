@@ -35,9 +35,15 @@ def noisy():
 
 
 def _call(fn, *args, **kwargs):
+    """Crash-isolated call (the way benches run the baselines)."""
     out = run_isolated(fn, *args, timeout=120, **kwargs)
     assert out.ok, out.error
     return out.value
+
+
+def _direct(fn, *args, **kwargs):
+    """In-process call, for CGAL simplifiers that never crashed (saves spawn time)."""
+    return fn(*args, **kwargs)
 
 
 # --- smoothing --------------------------------------------------------------------------
@@ -127,20 +133,33 @@ def test_count_targeting_simplifiers(noisy, frac):
     x, _ = noisy
     count = int(frac * len(x))
     for fn in (cgal.grid_simplify_count, cgal.hierarchy_simplify_count):
-        idx = _call(fn, x, count)
+        idx = _direct(fn, x, count)
         _valid(idx, len(x))
         assert abs(len(idx) - count) <= max(2, cgal.COUNT_RTOL * count), fn.__name__
+
+
+def test_params_for_count_reproduce_count(noisy):
+    x, _ = noisy
+    count = 400
+    cell = _direct(cgal.grid_cell_for_count, x, count)
+    kept = _direct(cgal.grid_simplify, x, cell)
+    np.testing.assert_array_equal(kept, _direct(cgal.grid_simplify_count, x, count))
+    size, var = _direct(cgal.hierarchy_params_for_count, x, count)
+    assert isinstance(size, int) and 0 < var <= 1 / 3
+    kept = _direct(cgal.hierarchy_simplify, x, size, var)
+    np.testing.assert_array_equal(kept, _direct(cgal.hierarchy_simplify_count, x, count))
+    assert abs(len(kept) - count) <= cgal.COUNT_RTOL * count
 
 
 def test_grid_and_hierarchy(noisy):
     x, _ = noisy
     h = average_spacing(x)
-    fine = _call(cgal.grid_simplify, x, h)
-    coarse = _call(cgal.grid_simplify, x, 3 * h)
+    fine = _direct(cgal.grid_simplify, x, h)
+    coarse = _direct(cgal.grid_simplify, x, 3 * h)
     _valid(fine, len(x))
     _valid(coarse, len(x))
     assert len(coarse) < len(fine) < len(x)
-    hier = _call(cgal.hierarchy_simplify, x, 10)
+    hier = _direct(cgal.hierarchy_simplify, x, 10)
     _valid(hier, len(x))
     assert len(x) / 15 < len(hier) < len(x) / 3
 

@@ -148,8 +148,11 @@ def test_bumpy_plane_normals_and_saliency(shapes):
     z, fx, fy, g = ds._bumps(p[:, 0], p[:, 1])
     np.testing.assert_allclose(p[:, 2], z, atol=1e-14)
     eps = 1e-6  # finite differences: independent of the analytic gradient
-    gx = (ds._bumps(p[:, 0] + eps, p[:, 1])[0] - ds._bumps(p[:, 0] - eps, p[:, 1])[0]) / 2 / eps
-    gy = (ds._bumps(p[:, 0], p[:, 1] + eps)[0] - ds._bumps(p[:, 0], p[:, 1] - eps)[0]) / 2 / eps
+    def f(x, y):
+        return ds._bumps(x, y)[0]
+
+    gx = (f(p[:, 0] + eps, p[:, 1]) - f(p[:, 0] - eps, p[:, 1])) / (2 * eps)
+    gy = (f(p[:, 0], p[:, 1] + eps) - f(p[:, 0], p[:, 1] - eps)) / (2 * eps)
     ref = np.column_stack([-gx, -gy, np.ones(len(p))])
     ref /= np.linalg.norm(ref, axis=1, keepdims=True)
     np.testing.assert_allclose(n, ref, atol=1e-6)
@@ -253,15 +256,16 @@ def test_noise_random_and_impulsive():
     d = q - s.points
     rms = np.sqrt((d * d).sum(1).mean()) / s.h
     assert rms == pytest.approx(0.2, rel=0.03)
-    assert np.sqrt(np.mean(d[:, 2] ** 2)) / s.h == pytest.approx(0.2 / np.sqrt(3), rel=0.04)
+    rms_z = np.sqrt(np.mean(d[:, 2] ** 2)) / s.h
+    assert rms_z == pytest.approx(0.2 / np.sqrt(3), rel=0.04)
     q = add_noise(s.points, s.normals, sigma=0.5, kind="impulsive", seed=3)
     d = q - s.points
     hit = np.linalg.norm(d, axis=1) > 0
-    assert hit.sum() == 2000
+    assert hit.sum() == 10000  # default fraction 0.5
     np.testing.assert_array_equal(d[:, :2], 0.0)
     assert d[hit, 2].std() / s.h == pytest.approx(0.5, rel=0.05)
-    q3 = add_noise(s.points, s.normals, sigma=0.5, kind="impulsive", seed=3, fraction=0.3)
-    assert (np.linalg.norm(q3 - s.points, axis=1) > 0).sum() == 6000
+    q3 = add_noise(s.points, s.normals, sigma=0.5, kind="impulsive", seed=3, fraction=0.1)
+    assert (np.linalg.norm(q3 - s.points, axis=1) > 0).sum() == 2000
 
 
 def test_noise_seed_and_errors():
@@ -302,6 +306,22 @@ def test_cut_holes_cube():
     assert average_spacing(c.points) == pytest.approx(c.h)
 
 
+def test_cut_holes_sphere_twice_avoids_old_holes():
+    s = make_shape("sphere", 10000, seed=0)
+    c = cut_holes(s, n_holes=2, radius=6.0, seed=0)
+    assert not s.rim.any() and c.rim.any()
+    np.testing.assert_allclose(c.extra["boundary_distance"],
+                               np.linalg.norm(c.points[:, None] - c.extra["hole_centers"],
+                                              axis=2).min(1) - 6.0 * s.h)
+    cc = cut_holes(c, n_holes=2, radius=6.0, seed=1)
+    # new centres sit at least radius + 2h from the old hole rims
+    new_c, old_c = cc.extra["hole_centers"], c.extra["hole_centers"]
+    old = np.linalg.norm(new_c[:, None] - old_c[None], axis=2)
+    assert (old >= 6.0 * s.h + (6.0 + 2.0) * c.h - 1e-12).all()
+    np.testing.assert_array_equal(cc.points, s.points[cc.extra["keep_idx"]])
+    assert cc.rim.sum() > c.rim.sum()
+
+
 def test_cut_holes_keeps_open_boundary_and_is_seeded():
     s = make_shape("plane", 8000, seed=0)
     c = cut_holes(s, n_holes=2, radius=6.0, seed=3)
@@ -332,7 +352,8 @@ def _grid_mesh(fold_deg=0.0):
 
 
 def _cube_mesh():
-    V = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    c = (-0.5, 0.5)
+    V = np.array([[x, y, z] for x in c for y in c for z in c])
     F = []
     for axis in range(3):
         for side in (0, 1):
@@ -349,7 +370,8 @@ def _cube_mesh():
 def test_mesh_sample_flat_and_folded():
     V, F = _grid_mesh()
     s = mesh_sample(V, F)
-    np.testing.assert_allclose(np.abs(s.normals), np.tile([0, 0, 1.0], (9, 1)), atol=1e-12)
+    np.testing.assert_allclose(np.abs(s.normals), np.tile([0, 0, 1.0], (9, 1)),
+                               atol=1e-12)
     assert not s.sharp.any()
     np.testing.assert_array_equal(s.rim, np.arange(9) != 4)  # all but the centre
     V2, F2 = _grid_mesh(40.0)
@@ -382,8 +404,8 @@ def test_sample_mesh_surface_cube_matches_analytic():
 
 
 def test_sample_mesh_surface_smooth_normals_on_sphere():
-    th, ph = np.meshgrid(np.linspace(0, np.pi, 25)[1:-1], np.linspace(0, 2 * np.pi, 49)[:-1],
-                         indexing="ij")
+    th, ph = np.meshgrid(np.linspace(0, np.pi, 25)[1:-1],
+                         np.linspace(0, 2 * np.pi, 49)[:-1], indexing="ij")
     V = np.column_stack([np.sin(th).ravel() * np.cos(ph).ravel(),
                          np.sin(th).ravel() * np.sin(ph).ravel(), np.cos(th).ravel()])
     V = np.vstack([V, [[0, 0, 1], [0, 0, -1]]])
@@ -404,7 +426,8 @@ def test_sample_mesh_surface_smooth_normals_on_sphere():
     for mode in ("face", "interpolated", "auto"):
         s = sample_mesh_surface(V, F, 4000, seed=0, normals=mode)
         true = s.points / np.linalg.norm(s.points, axis=1, keepdims=True)
-        err[mode] = np.degrees(np.arccos(np.clip(np.abs((s.normals * true).sum(1)), 0, 1)))
+        cos = np.clip(np.abs((s.normals * true).sum(1)), 0, 1)
+        err[mode] = np.degrees(np.arccos(cos))
     assert err["interpolated"].mean() < 0.5 * err["face"].mean()
     np.testing.assert_allclose(err["auto"], err["interpolated"], atol=1e-9)
     assert not s.sharp.any() and not s.rim.any()
@@ -421,7 +444,7 @@ def test_sample_mesh_surface_rim_on_open_square():
 
 
 # ------------------------------------------------------------------ loaders
-def test_load_sample_mesh_bunny():
+def test_load_sample_mesh():
     if ds.pymeshlab_sample_dir() is None:
         pytest.skip("pymeshlab sample meshes not available")
     s = load_sample_mesh("bone")

@@ -119,6 +119,12 @@ def test_peak_memory_sees_allocation():
     assert big.peak_mb - small.peak_mb > 250
 
 
+def test_peak_memory_not_inherited_from_parent():
+    ballast = np.ones(400 * 2 ** 20 // 8)  # 400 MB held by the parent
+    out = run_isolated(_alloc, 1)
+    assert out.ok and out.peak_mb < 300 < ballast.nbytes / 2 ** 20
+
+
 def test_knn_pass_seconds():
     x = np.random.default_rng(2).random((2000, 3))
     s = harness.knn_pass_seconds(x, k=16)

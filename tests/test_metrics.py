@@ -5,6 +5,7 @@ import pytest
 
 from filters._validation import PointCloudError
 from filters.metrics import (
+    bbox_diagonal,
     mad_degrees,
     mse_symmetric,
     precision_recall_f1,
@@ -77,6 +78,14 @@ def test_mse_properties(rng):
     rot, t = _rotation(rng), np.array([1e6, -2e6, 3e5])
     assert mse_symmetric(p @ rot.T + t, q @ rot.T + t) == pytest.approx(m, rel=1e-6)
     assert mse_symmetric(3 * p, 3 * q) == pytest.approx(9 * m, rel=1e-12)
+    # unit-diagonal MSE is scale-free
+    diag = bbox_diagonal(p)
+    assert mse_symmetric(p, q, unit_diagonal=True) == pytest.approx(m / diag**2)
+    assert mse_symmetric(3 * p, 3 * q, unit_diagonal=True) == pytest.approx(m / diag**2)
+
+
+def test_bbox_diagonal_hand_computed():
+    assert bbox_diagonal([[0, 0, 0], [1, 2, 2], [0.5, 1, 0]]) == pytest.approx(3.0)
 
 
 # --------------------------------------------------------------------- SNR
@@ -101,7 +110,8 @@ def test_snr_drops_6db_when_noise_doubles(rng):
     assert s1 - s2 == pytest.approx(6.02, abs=0.05)
     # invariant to rigid motion and scale (power measured about the true centroid)
     rot, t = _rotation(rng), np.array([5e5, 1e5, -3e5])
-    assert snr_db(7 * p @ rot.T + t, 7 * (p + d) @ rot.T + t) == pytest.approx(s1, abs=1e-6)
+    moved = snr_db(7 * p @ rot.T + t, 7 * (p + d) @ rot.T + t)
+    assert moved == pytest.approx(s1, abs=1e-6)
 
 
 def test_mse_snr_errors():
@@ -150,7 +160,8 @@ def test_prf_hand_computed():
     # tp=2, fp=1, fn=1
     assert precision_recall_f1([1, 1, 0, 0, 1], [1, 0, 1, 0, 1]) == pytest.approx(
         (2 / 3, 2 / 3, 2 / 3))
-    p, r, f = precision_recall_f1(np.array([1, 0, 0, 0], bool), np.array([1, 1, 1, 0], bool))
+    p, r, f = precision_recall_f1(np.array([1, 0, 0, 0], bool),
+                                  np.array([1, 1, 1, 0], bool))
     assert (p, r) == pytest.approx((1.0, 1 / 3)) and f == pytest.approx(0.5)
 
 
@@ -185,7 +196,8 @@ def test_auc_matches_sklearn_with_ties(rng):
     sk = pytest.importorskip("sklearn.metrics")
     scores = np.round(rng.random(3000), 2)  # many ties
     truth = rng.random(3000) < 0.2 + 0.5 * scores
-    assert roc_auc(scores, truth) == pytest.approx(sk.roc_auc_score(truth, scores), abs=1e-12)
+    expected = sk.roc_auc_score(truth, scores)
+    assert roc_auc(scores, truth) == pytest.approx(expected, abs=1e-12)
     # invariant to a monotone transform of the scores
     assert roc_auc(np.exp(5 * scores), truth) == pytest.approx(roc_auc(scores, truth))
 

@@ -1,0 +1,320 @@
+"""
+bench_saliency.py
+-----------------
+Saliency benchmark (thesis ch.5): ROC AUC of ``saliency_sparse_mdl`` against
+constructed ground truth, beside simple baselines, plus heat maps, a side
+signal against per-face saliency maps of unknown origin, and the speed run.
+
+Ground truth
+    * CAD solids ("cube", "fandisk", "block", "star", "octahedron"):
+      ``Sample.sharp`` = points within 1 h of an edge sharper than 30°.
+    * "bumpy_plane": ``extra["salient"]`` = within 2σ of a bump or dent centre.
+Conditions: clean; 0.3 h Gaussian noise along the normal ("0.3h"); the thesis'
+Fig. 5.12 setting, 30 % random noise (σ = 0.3 h in a random direction).
+
+Baselines: surface variation λ0/Σλ of 16-NN PCA (thesis 2.5); curvature
+magnitude √(k1²+k2²) of the same radius-3h quadric fit the filter uses; |K|;
+the SDBS global score of chapter 6 when ``filters.simplify`` provides it.
+
+``run`` writes reports/saliency.md/.json and reports/img/saliency_*.png;
+``run_speed`` writes reports/speed_saliency.md/.json.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from baselines import harness
+from baselines.datasets import add_noise, load_shared_model, make_shape
+from filters.metrics import roc_auc
+from filters.neighbors import build_tree, knn, weighted_pca
+from filters.saliency import (local_frames_and_curvature, neighbourhoods,
+                              saliency_sparse_mdl)
+
+log = logging.getLogger("pcprep")
+
+CAD = ("cube", "fandisk", "block", "star", "octahedron")
+SMOOTH = ("bumpy_plane",)
+CONDITIONS = (("clean", None, 0.0), ("0.3h", "normal", 0.3), ("30% random", "random", 0.3))
+UNVERIFIED = ("armadillo", "bimba", "blade", "bunny", "bust", "fandisk", "gargoyle", "horse",
+              "maxplanck")
+THESIS_SECONDS_15K = 81.7
+METHODS = ("ours", "ours (thesis 5.7, mdl)", "surface variation", "curvature magnitude",
+           "|K| (Gaussian)", "SDBS global score")
+
+
+# ----------------------------------------------------------------------------------------
+# baselines
+
+def _sdbs_score_fn():
+    """The ch.6 SDBS score function if ``filters.simplify`` offers one, else None."""
+    try:
+        from filters import simplify  # noqa: F401
+    except ImportError:
+        return None
+    for name in ("sdbs_scores", "sdbs_score", "score_sdbs", "global_scores"):
+        fn = getattr(simplify, name, None)
+        if callable(fn):
+            return fn
+    return None
+
+
+def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.ndarray]:
+    """Simple per-point saliency baselines (higher = more salient)."""
+    tree = build_tree(points)
+    _, idx = knn(points, 16, tree=tree)
+    out = {"surface variation": weighted_pca(points, idx).surface_variation}
+    from filters.neighbors import average_spacing
+    h = average_spacing(points, tree=tree)
+    hood = neighbourhoods(points, radius * h, 48, tree)
+    _, gauss, total = local_frames_and_curvature(points, hood, radius * h)
+    out["curvature magnitude"] = total
+    out["|K| (Gaussian)"] = np.abs(gauss)
+    fn = _sdbs_score_fn()
+    if fn is not None:
+        try:
+            res = fn(points)
+            sc = getattr(res, "score", getattr(res, "scores", res))
+            out["SDBS global score"] = np.asarray(sc, dtype=np.float64).reshape(-1)
+        except Exception as exc:  # noqa: BLE001 - a baseline failure is reported, not fatal
+            log.info("bench_saliency: SDBS score failed: %s", exc)
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# pictures
+
+def _heatmap(path: Path, panels: list[tuple[str, np.ndarray, np.ndarray]], ncols: int = 3,
+             max_points: int = 6000) -> Path:
+    """Grid of point scatters coloured by score (each panel min-max scaled for
+    display), fixed view; about 600×400 px."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    nrows = math.ceil(len(panels) / ncols)
+    fig = plt.figure(figsize=(6.0, 2.0 * nrows), dpi=100)
+    for i, (title, pts, vals) in enumerate(panels):
+        ax = fig.add_subplot(nrows, ncols, i + 1, projection="3d")
+        sel = np.arange(len(pts))
+        if len(pts) > max_points:
+            sel = np.random.default_rng(0).choice(len(pts), max_points, replace=False)
+        p, v = pts[sel], vals[sel]
+        lo, hi = float(v.min()), float(v.max())
+        ax.scatter(*p.T, s=0.6, c=(v - lo) / (hi - lo if hi > lo else 1.0), cmap="inferno",
+                   vmin=0, vmax=1, linewidths=0, depthshade=False)
+        lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
+        c, r = 0.5 * (lo3 + hi3), 0.5 * float(np.max(hi3 - lo3))
+        for setlim, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
+            setlim(c[k] - r, c[k] + r)
+        ax.view_init(elev=28.0, azim=-58.0)
+        ax.set_box_aspect((1, 1, 1))
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=7)
+    fig.subplots_adjust(left=0, right=1, top=0.92, bottom=0, wspace=0, hspace=0.12)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------------
+# quality
+
+def _truth(sample):
+    return sample.extra["salient"] if sample.name == "bumpy_plane" else sample.sharp
+
+
+def _evaluate(name: str, n: int, seed: int, conditions, img_dir: Path | None) -> list[dict]:
+    sample = make_shape(name, n=n, seed=seed)
+    truth = _truth(sample)
+    rows, pics_ours, pics_base = [], [], []
+    for cond, kind, sigma in conditions:
+        pts = sample.points if kind is None else add_noise(
+            sample.points, sample.normals, sigma=sigma, h=sample.h, kind=kind, seed=seed + 1)
+        t0 = time.perf_counter()
+        ours = saliency_sparse_mdl(pts)
+        dt = time.perf_counter() - t0
+        mdl = saliency_sparse_mdl(pts, measure="mdl")
+        scores = {"ours": ours.saliency, "ours (thesis 5.7, mdl)": mdl.saliency}
+        scores.update(baseline_scores(pts))
+        row = {"shape": name, "condition": cond, "n": len(pts), "positives": int(truth.sum()),
+               "seconds_ours": dt}
+        for m in METHODS:
+            row[m] = roc_auc(scores[m], truth) if m in scores else None
+        rows.append(row)
+        pics_ours.append((f"ours, {cond} (AUC {row['ours']:.2f})", pts, ours.saliency))
+        cm = scores["curvature magnitude"]
+        pics_base.append((f"curv. magnitude, {cond} ({row['curvature magnitude']:.2f})", pts,
+                          cm))
+        log.info("bench_saliency: %s %s ours AUC %.3f", name, cond, row["ours"])
+    if img_dir is not None:
+        _heatmap(img_dir / f"saliency_{name}.png", pics_ours + pics_base)
+    return rows
+
+
+def _unverified(max_models: int | None = None) -> list[dict]:
+    """Correlation with the per-face maps of unknown origin (side signal only)."""
+    rows = []
+    for name in UNVERIFIED[:max_models]:
+        try:
+            s = load_shared_model(f"saliency_unverified/{name}_decimated.obj")
+        except Exception as exc:  # noqa: BLE001
+            log.info("bench_saliency: %s not loaded: %s", name, exc)
+            continue
+        if s is None or "vertex_saliency" not in s.extra:
+            continue
+        ref = s.extra["vertex_saliency"]
+        ours = saliency_sparse_mdl(s.points).saliency
+        base = baseline_scores(s.points)
+        row = {"model": name, "n": len(s.points)}
+        for m, v in [("ours", ours)] + list(base.items()):
+            row[m] = float(np.corrcoef(v, ref)[0, 1])
+        rows.append(row)
+    return rows
+
+
+def _auc_table(rows: list[dict]) -> str:
+    methods = [m for m in METHODS if any(r.get(m) is not None for r in rows)]
+    header = ["shape", "noise", "positives"] + methods
+    body = [[r["shape"], r["condition"], r["positives"]] +
+            [r.get(m) if r.get(m) is not None else "not available" for m in methods]
+            for r in rows]
+    best = {3 + i: "max" for i in range(len(methods))}
+    return harness.markdown_table(header, body, best=best, fmt="{:.3f}")
+
+
+def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
+    """Saliency quality benchmark → ``<out_dir>/saliency.md`` + ``.json`` and heat maps
+    ``<out_dir>/img/saliency_<shape>.png``.
+
+    ``quick``: cube and bumpy_plane, clean and 0.3 h, 8000 points, no unverified maps
+    (about a minute).  Full: five CAD solids and the bumpy plane, three noise
+    conditions, 20000 points, plus the unverified side signal.
+    """
+    out = Path(out_dir)
+    if not out.is_absolute():
+        out = harness.ROOT / out
+    img = out / "img"
+    shapes = ("cube", "bumpy_plane") if quick else CAD + SMOOTH
+    conditions = CONDITIONS[:2] if quick else CONDITIONS
+    n = 8000 if quick else 20000
+    t0 = time.perf_counter()
+    rows = []
+    for name in shapes:
+        rows += _evaluate(name, n, seed, conditions, img)
+    unver = [] if quick else _unverified()
+    sdbs = _sdbs_score_fn() is not None
+
+    cad = [r for r in rows if r["shape"] in CAD]
+
+    def _mean(rs, m):
+        v = [r[m] for r in rs if r.get(m) is not None]
+        return float(np.mean(v)) if v else None
+
+    summary = {}
+    for cond, _, _ in conditions:
+        rs = [r for r in cad if r["condition"] == cond]
+        summary[cond] = {m: _mean(rs, m) for m in METHODS}
+    targets = {
+        "cad_clean_min_auc": min((r["ours"] for r in cad if r["condition"] == "clean"),
+                                 default=None),
+        "cad_0.3h_min_auc": min((r["ours"] for r in cad if r["condition"] == "0.3h"),
+                                default=None),
+    }
+    md = ["# Saliency (thesis ch. 5): ROC AUC against constructed ground truth", "",
+          f"Generated by `baselines/bench_saliency.py` ({'quick' if quick else 'full'} run, "
+          f"seed {seed}, {n} points per shape, {time.perf_counter() - t0:.0f} s).", "",
+          "Ground truth: CAD solids — points within 1 h of an edge sharper than 30° "
+          "(`Sample.sharp`); bumpy plane — points within 2σ of a bump or dent centre. "
+          "Noise: `0.3h` = Gaussian σ = 0.3 h along the normal; `30% random` = the thesis' "
+          "Fig. 5.12 setting, σ = 0.3 h in a random direction.", "",
+          "Methods: **ours** = `saliency_sparse_mdl` defaults (radius 3 h, 8 rays, λ = 0.9, "
+          "residual measure); **ours (thesis 5.7, mdl)** = the thesis' product "
+          "N(‖α‖₀)·N(residual); surface variation = λ0/Σλ of 16-NN PCA; curvature magnitude "
+          "= √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself uses; SDBS "
+          "global score (ch. 6) " + ("included." if sdbs else "— not available "
+                                     "(`filters.simplify` has no score function yet)."), "",
+          _auc_table(rows), "",
+          "Mean AUC over the CAD solids:", ""]
+    md.append(harness.markdown_table(
+        ["noise"] + list(METHODS),
+        [[c] + [summary[c][m] if summary[c][m] is not None else "not available"
+                for m in METHODS] for c in summary],
+        best={1 + i: "max" for i in range(len(METHODS))}, fmt="{:.3f}"))
+    md += ["", f"Targets: AUC ≥ 0.85 clean (worst CAD shape: "
+           f"{targets['cad_clean_min_auc']:.3f}) and ≥ 0.8 at 0.3 h (worst: "
+           f"{targets['cad_0.3h_min_auc']:.3f}); above every simple baseline — see the "
+           "bold entries: where a baseline is bold, the target is missed on that row.", ""]
+    if unver:
+        md += ["## Side signal: per-face maps of unknown origin", "",
+               "Pearson correlation of each score with the vertex average of the per-face "
+               "values in `saliency_unverified/` (provenance unknown, NOT ground truth; "
+               "shown only as a side signal).", ""]
+        ms = [m for m in METHODS if m in unver[0]]
+        md.append(harness.markdown_table(["model", "n"] + ms,
+                                         [[r["model"], r["n"]] + [r[m] for m in ms]
+                                          for r in unver], fmt="{:.3f}"))
+    md += ["", "Schelling-point data (thesis Table 5.1: AUC/NSS/LCC on SHREC 2007) is not "
+           "in the shared data, so that protocol is not run.", ""]
+    pics = sorted(img.glob("saliency_*.png"))
+    for p in pics:
+        if p.stem.startswith("saliency_") and p.stem[9:] in shapes:
+            md.append(f"![{p.stem}](img/{p.name})")
+    data = {"rows": rows, "summary_cad": summary, "targets": targets, "unverified": unver,
+            "sdbs_available": sdbs, "quick": quick, "seed": seed, "n": n,
+            "env": harness.environment_info()}
+    harness.write_report("saliency", "\n".join(md), data, out_dir=out_dir)
+    return data
+
+
+# ----------------------------------------------------------------------------------------
+# speed
+
+def _time_saliency(points: np.ndarray) -> dict:
+    """Run the filter once (in an isolated child); return small facts only."""
+    res = saliency_sparse_mdl(points)
+    return {"n": len(points), "unconverged": res.n_unconverged,
+            "mean": float(res.saliency.mean())}
+
+
+def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
+    """Timing and peak memory at 15.5K and 1M points (quick: 15.5K and 100K), each in
+    a fresh process; a k-NN pass (k = 16) on the same cloud is the yardstick."""
+    sizes = (15_500, 100_000) if quick else (15_500, 1_000_000)
+    rows = []
+    for n in sizes:
+        pts = make_shape("fandisk", n=n, seed=seed).points
+        out = harness.measure(_time_saliency, pts)
+        yard = harness.knn_pass_seconds(pts)
+        limit = 3.0 if n <= 20_000 else 180.0
+        rows.append({"n": n, "seconds": out.seconds if out.ok else None,
+                     "peak_mb": out.peak_mb if out.ok else None,
+                     "start_mb": out.start_mb, "ok": out.ok, "error": out.error,
+                     "knn_seconds": float(yard), "ratio_to_knn":
+                     out.seconds / float(yard) if out.ok and float(yard) > 0 else None,
+                     "target_seconds": limit,
+                     "thesis_seconds": THESIS_SECONDS_15K if n == 15_500 else None,
+                     "speedup_vs_thesis": THESIS_SECONDS_15K / out.seconds
+                     if out.ok and n == 15_500 else None})
+        log.info("bench_saliency speed: n=%d %s", n, out)
+    body = [[r["n"], r["seconds"] if r["ok"] else r["error"], r["peak_mb"], r["knn_seconds"],
+             r["ratio_to_knn"], r["target_seconds"],
+             r["speedup_vs_thesis"] if r["speedup_vs_thesis"] else "—"] for r in rows]
+    md = ["# Saliency speed", "",
+          "`saliency_sparse_mdl` with defaults on the fandisk shape, each size in a fresh "
+          "process (`harness.measure`); peak RSS includes the interpreter and the input. "
+          "Yardstick: one cKDTree build + 16-NN query of the same cloud. Thesis: 15.5K "
+          "points in 81.7 s (MATLAB, i7-2670QM).", "",
+          harness.markdown_table(["points", "seconds", "peak MB", "k-NN pass s",
+                                  "× k-NN pass", "target s", "speed-up vs thesis"], body),
+          "", "Targets: 15.5K points ≤ 3 s; 1M points ≤ 180 s and ≤ 1 GB."]
+    data = {"rows": rows, "quick": quick, "seed": seed, "env": harness.environment_info()}
+    harness.write_report("speed_saliency", "\n".join(md), data, out_dir=out_dir)
+    return data

@@ -1,0 +1,169 @@
+"""Tests of filters/saliency.py (thesis ch.5) and its registry declaration."""
+
+import inspect
+
+import numpy as np
+import pytest
+
+from baselines.datasets import add_noise, make_shape
+from filters._validation import InvalidParameterError, PointCloudError
+from filters.metrics import roc_auc
+from filters.neighbors import average_spacing, build_tree
+from filters.saliency import (PARAMS, local_frames_and_curvature, neighbourhoods,
+                              saliency_sparse_mdl)
+
+N = 4000
+
+
+@pytest.fixture(scope="module")
+def bumpy():
+    s = make_shape("bumpy_plane", n=N, seed=0)
+    return s, saliency_sparse_mdl(s.points)
+
+
+def test_plane_is_uniform():
+    s = make_shape("plane", n=N, seed=0)
+    sal = saliency_sparse_mdl(s.points).saliency
+    assert sal.min() >= 0.0 and sal.max() == pytest.approx(1.0)
+    assert sal.std() < 0.02 and sal.min() > 0.9
+
+
+def test_sphere_is_near_uniform():
+    s = make_shape("sphere", n=N, seed=0)
+    sal = saliency_sparse_mdl(s.points).saliency
+    assert sal.std() < 0.05
+
+
+def test_bumps_on_a_plane_are_salient(bumpy):
+    s, res = bumpy
+    truth = s.extra["salient"]
+    assert roc_auc(res.saliency, truth) > 0.95
+    assert res.saliency[truth].mean() > 1.1 * res.saliency[~truth].mean()
+    # correlates with the graded ground truth (bump height profile)
+    assert np.corrcoef(res.saliency, s.extra["saliency"])[0, 1] > 0.6
+
+
+def test_bumps_stay_salient_under_noise():
+    s = make_shape("bumpy_plane", n=N, seed=1)
+    noisy = add_noise(s.points, s.normals, sigma=0.3, h=s.h, kind="normal", seed=2)
+    assert roc_auc(saliency_sparse_mdl(noisy).saliency, s.extra["salient"]) > 0.9
+
+
+def test_cube_edges_and_corners_are_salient():
+    s = make_shape("cube", n=6000, seed=0)
+    res = saliency_sparse_mdl(s.points)
+    assert roc_auc(res.saliency, s.sharp) > 0.85
+    corner = np.linalg.norm(np.abs(s.points) - 0.5, axis=1) < 3 * s.h
+    assert res.saliency[corner].mean() > res.saliency[s.sharp & ~corner].mean() \
+        > res.saliency[~s.sharp].mean()
+
+
+def test_invariant_to_scale_and_rigid_motion(bumpy):
+    s, res = bumpy
+    moved = make_shape("bumpy_plane", n=N, seed=0, rotate=True, scale=1000.0)
+    np.testing.assert_allclose(moved.points / 1000.0 @ moved.extra["rotation"],
+                               s.points + moved.extra["translation"] / 1000.0
+                               @ moved.extra["rotation"], atol=1e-9)  # same cloud
+    sal = saliency_sparse_mdl(moved.points).saliency
+    # only the in-plane start angle of the rays may change (degenerate PCA frames)
+    assert np.abs(sal - res.saliency).max() < 0.05
+    assert np.corrcoef(sal, res.saliency)[0, 1] > 0.995
+
+
+def test_point_order_and_normal_sign_do_not_matter(bumpy):
+    s, res = bumpy
+    perm = np.random.default_rng(3).permutation(N)
+    np.testing.assert_allclose(saliency_sparse_mdl(s.points[perm]).saliency,
+                               res.saliency[perm], atol=5e-3)
+    a = saliency_sparse_mdl(s.points, s.normals).saliency
+    b = saliency_sparse_mdl(s.points, -s.normals).saliency
+    np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_deterministic_and_input_untouched(bumpy):
+    s, res = bumpy
+    pts = s.points.copy()
+    again = saliency_sparse_mdl(pts)
+    np.testing.assert_array_equal(pts, s.points)
+    np.testing.assert_array_equal(again.saliency, res.saliency)
+    assert saliency_sparse_mdl(pts, seed=5).saliency.tolist() == res.saliency.tolist()
+
+
+def test_result_fields(bumpy):
+    s, res = bumpy
+    n = len(s.points)
+    assert res.saliency.shape == res.residual.shape == res.sparsity.shape == (n,)
+    assert res.descriptors.shape == (n, 5) and res.atoms.shape == (n, 8)
+    np.testing.assert_allclose(np.linalg.norm(res.normals, axis=1), 1.0)
+    assert res.radius == pytest.approx(3.0 * res.h)
+    assert np.isfinite(res.saliency).all() and 0 <= res.saliency.min() <= res.saliency.max() <= 1
+    # atoms lie near the 1-ring: within r, mostly beyond r/2 on the open plane
+    d = np.linalg.norm(s.points[res.atoms] - s.points[:, None, :], axis=2)
+    assert (d <= res.radius * (1 + 1e-9)).all() and np.median(d) > 0.6 * res.radius
+
+
+def test_mdl_measure_is_reachable(bumpy):
+    s, _ = bumpy
+    res = saliency_sparse_mdl(s.points, measure="mdl")
+    expected = res.sparsity / res.sparsity.max() * res.residual / res.residual.max()
+    np.testing.assert_allclose(res.neighbourhood_saliency, expected)
+
+
+def test_quadric_curvature_of_a_sphere():
+    g = np.random.default_rng(0)
+    p = g.normal(size=(6000, 3))
+    R = 7.0
+    p = R * p / np.linalg.norm(p, axis=1)[:, None]
+    h = average_spacing(p)
+    tree = build_tree(p)
+    hood = neighbourhoods(p, 3 * h, 48, tree)
+    frames, gauss, total = local_frames_and_curvature(p, hood, 3 * h)
+    np.testing.assert_allclose(np.median(gauss), 1 / R ** 2, rtol=0.05)
+    np.testing.assert_allclose(np.median(total), np.sqrt(2) / R, rtol=0.05)
+    # the third frame column is the radial direction
+    assert np.median(np.abs(np.einsum("ij,ij->i", frames[:, :, 2], p / R))) > 0.999
+
+
+def test_params_match_the_signature_and_the_registry():
+    sig = inspect.signature(saliency_sparse_mdl)
+    kw = [n for n, q in sig.parameters.items() if q.kind == q.KEYWORD_ONLY]
+    assert kw == [p.name for p in PARAMS]
+    assert all(sig.parameters[p.name].default == p.default for p in PARAMS)
+    from meshlab_bridge import registry
+    spec = registry.get("saliency")
+    assert spec.func is saliency_sparse_mdl and spec.kind == "scalar"
+    assert spec.scalar_field == "saliency" and spec.params is PARAMS
+
+
+@pytest.mark.parametrize("points, match", [
+    (np.zeros((0, 3)), "empty"),
+    (np.full((50, 3), np.nan), "NaN"),
+    (np.random.default_rng(0).normal(size=(5, 3)), "at least"),
+    (np.zeros((50, 3)), "coincide"),
+    (np.outer(np.linspace(0, 1, 50), [1.0, 2.0, 3.0]), "collinear"),
+    (np.ones((50, 2)), "shape"),
+])
+def test_bad_clouds_raise(points, match):
+    with pytest.raises(PointCloudError, match=f"saliency_sparse_mdl.*{match}|{match}"):
+        saliency_sparse_mdl(points)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"radius": 0.5}, "radius"), ({"radius": -1.0}, "radius"), ({"n_rays": 2}, "n_rays"),
+    ({"n_rays": 8.5}, "n_rays"), ({"alpha": 0.0}, "alpha"), ({"alpha": float("nan")}, "alpha"),
+    ({"measure": "max"}, "measure"), ({"k_max": 4}, "k_max"), ({"seed": -1}, "seed"),
+])
+def test_bad_parameters_raise(bumpy, kwargs, name):
+    s, _ = bumpy
+    with pytest.raises(InvalidParameterError, match=f"saliency_sparse_mdl.*{name}"):
+        saliency_sparse_mdl(s.points[:100], **kwargs)
+
+
+def test_bad_normals_raise(bumpy):
+    s, _ = bumpy
+    with pytest.raises(PointCloudError, match="rows"):
+        saliency_sparse_mdl(s.points, s.normals[:10])
+    nrm = s.normals.copy()
+    nrm[3] = 0.0
+    with pytest.raises(PointCloudError, match="zero-length"):
+        saliency_sparse_mdl(s.points, nrm)

@@ -1,0 +1,138 @@
+"""Tests for filters/simplify.py (SDBS, thesis ch.6)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from baselines.datasets import make_shape
+from filters import simplify as S
+from filters._validation import InvalidParameterError, PointCloudError
+from filters.metrics import simplification_error
+from filters.neighbors import build_tree, knn
+
+FAST = dict(n_atoms=60, max_iter=3, max_train=3000)
+
+
+@pytest.fixture(scope="module")
+def cube():
+    return make_shape("cube", n=6000, seed=0)
+
+
+@pytest.fixture(scope="module")
+def cube_result(cube):
+    return S.simplify_sdbs(cube.points, ratio=0.1, seed=0, **FAST)
+
+
+def test_creases_kept_denser_than_faces(cube, cube_result):
+    keep = np.zeros(len(cube.points), dtype=bool)
+    keep[cube_result.keep_idx] = True
+    sharp = cube.sharp
+    assert sharp.any() and (~sharp).any()
+    assert keep[sharp].mean() > 1.5 * keep[~sharp].mean()
+    # and the saliency itself is higher on the creases
+    assert np.median(cube_result.score[sharp]) > np.median(cube_result.score[~sharp])
+
+
+def test_count_ratio_honoured_and_subset(cube, cube_result):
+    n = len(cube.points)
+    idx = cube_result.keep_idx
+    assert len(idx) == round(0.1 * n)
+    assert idx.dtype == np.int64 and np.all(np.diff(idx) > 0)
+    assert idx[0] >= 0 and idx[-1] < n
+    assert abs(cube_result.n_greedy - len(idx)) <= 0.01 * len(idx) + 1
+    res = S.simplify_sdbs(cube.points, count=777, seed=0, **FAST)
+    assert len(res.keep_idx) == 777
+
+
+def test_delta_direct(cube, cube_result):
+    res = S.simplify_sdbs(cube.points, delta=cube_result.delta, seed=0, **FAST)
+    assert len(res.keep_idx) == res.n_greedy == cube_result.n_greedy
+    more = S.simplify_sdbs(cube.points, delta=0.5 * cube_result.delta, seed=0, **FAST)
+    assert len(more.keep_idx) > len(res.keep_idx)
+
+
+def test_deterministic_and_input_untouched(cube, cube_result):
+    pts = cube.points.copy()
+    res = S.simplify_sdbs(pts, ratio=0.1, seed=0, **FAST)
+    np.testing.assert_array_equal(pts, cube.points)
+    np.testing.assert_array_equal(res.keep_idx, cube_result.keep_idx)
+    np.testing.assert_array_equal(res.score, cube_result.score)
+
+
+def test_scale_and_rigid_motion_invariance(cube, cube_result):
+    rot = Rotation.from_euler("xyz", [30, -50, 70], degrees=True).as_matrix()
+    moved = 1000.0 * cube.points @ rot.T + np.array([1e5, -3e4, 2e3])
+    res = S.simplify_sdbs(moved, ratio=0.1, seed=0, **FAST)
+    a, b = set(res.keep_idx.tolist()), set(cube_result.keep_idx.tolist())
+    # scores agree to rounding; the greedy cascade may flip a few choices
+    np.testing.assert_allclose(res.score, cube_result.score, atol=1e-6)
+    assert len(a & b) / len(a | b) > 0.9
+
+
+def test_better_than_random_subset(cube, cube_result):
+    rng = np.random.default_rng(0)
+    rand = np.sort(rng.choice(len(cube.points), len(cube_result.keep_idx), replace=False))
+    _, avg_sdbs = simplification_error(cube.points, cube.points[cube_result.keep_idx])
+    _, avg_rand = simplification_error(cube.points, cube.points[rand])
+    assert avg_sdbs < avg_rand
+
+
+def _naive_greedy(P, score, rho):
+    n = len(P)
+    order = np.lexsort((np.arange(n), -score))
+    removed = np.zeros(n, dtype=bool)
+    visited = np.zeros(n, dtype=bool)
+    keep = np.zeros(n, dtype=bool)
+    for i in order:
+        visited[i] = True
+        if removed[i]:
+            continue
+        keep[i] = True
+        d = np.linalg.norm(P - P[i], axis=1)
+        removed |= (d <= rho[i]) & ~visited
+    return keep
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_parallel_greedy_equals_sequential(seed):
+    rng = np.random.default_rng(seed)
+    P = rng.random((1500, 3)) * [1, 1, 0.05]
+    score = rng.random(1500) ** 2
+    score[:50] = score[50]  # ties are broken by index
+    rho = 0.02 / np.maximum(score, 0.1)
+    dist, idx = knn(P, 12)  # short lists: the exact ball fallback is exercised
+    got = S.greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho,
+                        tree=build_tree(P))
+    np.testing.assert_array_equal(got, _naive_greedy(P, score, rho))
+
+
+def test_bad_input(cube):
+    pts = cube.points
+    f = S.simplify_sdbs
+    with pytest.raises(InvalidParameterError, match="exactly one"):
+        f(pts)
+    with pytest.raises(InvalidParameterError, match="exactly one"):
+        f(pts, ratio=0.1, count=10)
+    with pytest.raises(InvalidParameterError, match="ratio"):
+        f(pts, ratio=1.5)
+    with pytest.raises(InvalidParameterError, match="count"):
+        f(pts, count=len(pts) + 1)
+    with pytest.raises(InvalidParameterError, match="delta"):
+        f(pts, delta=-1.0)
+    with pytest.raises(InvalidParameterError, match="feature_scale"):
+        f(pts, ratio=0.1, feature_scale="raw")
+    with pytest.raises(InvalidParameterError, match="integer"):
+        f(pts, ratio=0.1, k=2.5)
+    with pytest.raises(PointCloudError, match="empty"):
+        f(np.zeros((0, 3)), ratio=0.1)
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(PointCloudError, match="NaN"):
+        f(bad, ratio=0.1)
+    with pytest.raises(PointCloudError, match="at least"):
+        f(pts[:5], ratio=0.5)
+    line = np.outer(np.linspace(0, 1, 100), [1.0, 2.0, 3.0])
+    with pytest.raises(PointCloudError, match="collinear"):
+        f(line, ratio=0.5)
+    with pytest.raises(PointCloudError, match="normals"):
+        f(pts, normals=np.ones((3, 3)), ratio=0.1)
