@@ -40,9 +40,10 @@ log = logging.getLogger("pcprep")
 
 CAD = ("cube", "fandisk", "block", "star", "octahedron")
 SMOOTH = ("bumpy_plane",)
-CONDITIONS = (("clean", None, 0.0), ("0.3h", "normal", 0.3), ("30% random", "random", 0.3))
-UNVERIFIED = ("armadillo", "bimba", "blade", "bunny", "bust", "fandisk", "gargoyle", "horse",
-              "maxplanck")
+CONDITIONS = (("clean", None, 0.0), ("0.3h", "normal", 0.3),
+              ("30% random", "random", 0.3))
+UNVERIFIED = ("armadillo", "bimba", "blade", "bunny", "bust", "fandisk", "gargoyle",
+              "horse", "maxplanck")
 THESIS_SECONDS_15K = 81.7
 METHODS = ("ours", "ours (thesis 5.7, mdl)", "surface variation", "curvature magnitude",
            "|K| (Gaussian)", "SDBS global score")
@@ -69,9 +70,7 @@ def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.nda
     tree = build_tree(points)
     _, idx = knn(points, 16, tree=tree)
     out = {"surface variation": weighted_pca(points, idx).surface_variation}
-    from filters.neighbors import average_spacing
-    h = average_spacing(points, tree=tree)
-    hood = neighbourhoods(points, radius * h, 48, tree)
+    hood, h = neighbourhoods(points, radius, 48, tree)
     _, gauss, total = local_frames_and_curvature(points, hood, radius * h)
     out["curvature magnitude"] = total
     out["|K| (Gaussian)"] = np.abs(gauss)
@@ -81,7 +80,7 @@ def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.nda
             res = fn(points)
             sc = getattr(res, "score", getattr(res, "scores", res))
             out["SDBS global score"] = np.asarray(sc, dtype=np.float64).reshape(-1)
-        except Exception as exc:  # noqa: BLE001 - a baseline failure is reported, not fatal
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal
             log.info("bench_saliency: SDBS score failed: %s", exc)
     return out
 
@@ -107,8 +106,9 @@ def _heatmap(path: Path, panels: list[tuple[str, np.ndarray, np.ndarray]], ncols
             sel = np.random.default_rng(0).choice(len(pts), max_points, replace=False)
         p, v = pts[sel], vals[sel]
         lo, hi = float(v.min()), float(v.max())
-        ax.scatter(*p.T, s=0.6, c=(v - lo) / (hi - lo if hi > lo else 1.0), cmap="inferno",
-                   vmin=0, vmax=1, linewidths=0, depthshade=False)
+        col = (v - lo) / (hi - lo if hi > lo else 1.0)
+        ax.scatter(*p.T, s=0.6, c=col, cmap="inferno", vmin=0, vmax=1, linewidths=0,
+                   depthshade=False)
         lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
         c, r = 0.5 * (lo3 + hi3), 0.5 * float(np.max(hi3 - lo3))
         for setlim, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
@@ -131,28 +131,30 @@ def _truth(sample):
     return sample.extra["salient"] if sample.name == "bumpy_plane" else sample.sharp
 
 
-def _evaluate(name: str, n: int, seed: int, conditions, img_dir: Path | None) -> list[dict]:
+def _evaluate(name: str, n: int, seed: int, conditions, img_dir: Path | None
+              ) -> list[dict]:
     sample = make_shape(name, n=n, seed=seed)
     truth = _truth(sample)
     rows, pics_ours, pics_base = [], [], []
     for cond, kind, sigma in conditions:
         pts = sample.points if kind is None else add_noise(
-            sample.points, sample.normals, sigma=sigma, h=sample.h, kind=kind, seed=seed + 1)
+            sample.points, sample.normals, sigma=sigma, h=sample.h, kind=kind,
+            seed=seed + 1)
         t0 = time.perf_counter()
         ours = saliency_sparse_mdl(pts)
         dt = time.perf_counter() - t0
         mdl = saliency_sparse_mdl(pts, measure="mdl")
         scores = {"ours": ours.saliency, "ours (thesis 5.7, mdl)": mdl.saliency}
         scores.update(baseline_scores(pts))
-        row = {"shape": name, "condition": cond, "n": len(pts), "positives": int(truth.sum()),
-               "seconds_ours": dt}
+        row = {"shape": name, "condition": cond, "n": len(pts),
+               "positives": int(truth.sum()), "seconds_ours": dt}
         for m in METHODS:
             row[m] = roc_auc(scores[m], truth) if m in scores else None
         rows.append(row)
         pics_ours.append((f"ours, {cond} (AUC {row['ours']:.2f})", pts, ours.saliency))
         cm = scores["curvature magnitude"]
-        pics_base.append((f"curv. magnitude, {cond} ({row['curvature magnitude']:.2f})", pts,
-                          cm))
+        title = f"curv. magnitude, {cond} ({row['curvature magnitude']:.2f})"
+        pics_base.append((title, pts, cm))
         log.info("bench_saliency: %s %s ours AUC %.3f", name, cond, row["ours"])
     if img_dir is not None:
         _heatmap(img_dir / f"saliency_{name}.png", pics_ours + pics_base)
@@ -229,18 +231,20 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                                 default=None),
     }
     md = ["# Saliency (thesis ch. 5): ROC AUC against constructed ground truth", "",
-          f"Generated by `baselines/bench_saliency.py` ({'quick' if quick else 'full'} run, "
-          f"seed {seed}, {n} points per shape, {time.perf_counter() - t0:.0f} s).", "",
+          "Generated by `baselines/bench_saliency.py` "
+          f"({'quick' if quick else 'full'} run, seed {seed}, {n} points per shape, "
+          f"{time.perf_counter() - t0:.0f} s).", "",
           "Ground truth: CAD solids — points within 1 h of an edge sharper than 30° "
           "(`Sample.sharp`); bumpy plane — points within 2σ of a bump or dent centre. "
-          "Noise: `0.3h` = Gaussian σ = 0.3 h along the normal; `30% random` = the thesis' "
-          "Fig. 5.12 setting, σ = 0.3 h in a random direction.", "",
-          "Methods: **ours** = `saliency_sparse_mdl` defaults (radius 3 h, 8 rays, λ = 0.9, "
-          "residual measure); **ours (thesis 5.7, mdl)** = the thesis' product "
-          "N(‖α‖₀)·N(residual); surface variation = λ0/Σλ of 16-NN PCA; curvature magnitude "
-          "= √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself uses; SDBS "
-          "global score (ch. 6) " + ("included." if sdbs else "— not available "
-                                     "(`filters.simplify` has no score function yet)."), "",
+          "Noise: `0.3h` = Gaussian σ = 0.3 h along the normal; `30% random` = the "
+          "thesis' Fig. 5.12 setting, σ = 0.3 h in a random direction.", "",
+          "Methods: **ours** = `saliency_sparse_mdl` defaults (radius 3 h, 8 rays, "
+          "λ = 0.9, residual measure); **ours (thesis 5.7, mdl)** = the thesis' product "
+          "N(‖α‖₀)·N(residual); surface variation = λ0/Σλ of 16-NN PCA; curvature "
+          "magnitude = √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself "
+          "uses; SDBS global score (ch. 6) "
+          + ("included." if sdbs else "— not available (`filters.simplify` has no score "
+             "function yet)."), "",
           _auc_table(rows), "",
           "Mean AUC over the CAD solids:", ""]
     md.append(harness.markdown_table(
@@ -251,18 +255,19 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     md += ["", f"Targets: AUC ≥ 0.85 clean (worst CAD shape: "
            f"{targets['cad_clean_min_auc']:.3f}) and ≥ 0.8 at 0.3 h (worst: "
            f"{targets['cad_0.3h_min_auc']:.3f}); above every simple baseline — see the "
-           "bold entries: where a baseline is bold, the target is missed on that row.", ""]
+           "bold entries: where a baseline is bold, the target is missed on that row.",
+           ""]
     if unver:
         md += ["## Side signal: per-face maps of unknown origin", "",
-               "Pearson correlation of each score with the vertex average of the per-face "
-               "values in `saliency_unverified/` (provenance unknown, NOT ground truth; "
-               "shown only as a side signal).", ""]
+               "Pearson correlation of each score with the vertex average of the "
+               "per-face values in `saliency_unverified/` (provenance unknown, NOT "
+               "ground truth; shown only as a side signal).", ""]
         ms = [m for m in METHODS if m in unver[0]]
         md.append(harness.markdown_table(["model", "n"] + ms,
                                          [[r["model"], r["n"]] + [r[m] for m in ms]
                                           for r in unver], fmt="{:.3f}"))
-    md += ["", "Schelling-point data (thesis Table 5.1: AUC/NSS/LCC on SHREC 2007) is not "
-           "in the shared data, so that protocol is not run.", ""]
+    md += ["", "Schelling-point data (thesis Table 5.1: AUC/NSS/LCC on SHREC 2007) is "
+           "not in the shared data, so that protocol is not run.", ""]
     pics = sorted(img.glob("saliency_*.png"))
     for p in pics:
         if p.stem.startswith("saliency_") and p.stem[9:] in shapes:
@@ -304,12 +309,13 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
                      "speedup_vs_thesis": THESIS_SECONDS_15K / out.seconds
                      if out.ok and n == 15_500 else None})
         log.info("bench_saliency speed: n=%d %s", n, out)
-    body = [[r["n"], r["seconds"] if r["ok"] else r["error"], r["peak_mb"], r["knn_seconds"],
-             r["ratio_to_knn"], r["target_seconds"],
+    body = [[r["n"], r["seconds"] if r["ok"] else r["error"], r["peak_mb"],
+             r["knn_seconds"], r["ratio_to_knn"], r["target_seconds"],
              r["speedup_vs_thesis"] if r["speedup_vs_thesis"] else "—"] for r in rows]
     md = ["# Saliency speed", "",
-          "`saliency_sparse_mdl` with defaults on the fandisk shape, each size in a fresh "
-          "process (`harness.measure`); peak RSS includes the interpreter and the input. "
+          "`saliency_sparse_mdl` with defaults on the fandisk shape, each size in a "
+          "fresh process (`harness.measure`); peak RSS includes the interpreter and the "
+          "input. "
           "Yardstick: one cKDTree build + 16-NN query of the same cloud. Thesis: 15.5K "
           "points in 81.7 s (MATLAB, i7-2670QM).", "",
           harness.markdown_table(["points", "seconds", "peak MB", "k-NN pass s",

@@ -258,6 +258,14 @@ def _markdown(data) -> str:
                                                             for i in range(len(METHODS))})
         md += ["Δmax (best in bold):", "", _only(t_max, "Δmax"), "",
                "Δavg (best in bold):", "", _only(t_avg, "Δavg"), ""]
+        krows = []
+        for c in cases:
+            if c["rate"] != rate:
+                continue
+            krows.append([c["model"], c["count"]]
+                         + [c["methods"][m].get("kept", "failed") for m in METHODS])
+        md += ["Kept points (target = round(rate·n)):", "",
+               harness.markdown_table(["model", "target"] + list(METHODS), krows), ""]
     if missing:
         md += [f"Models not available here (skipped): {', '.join(missing)}.", ""]
     t = data["targets"]

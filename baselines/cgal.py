@@ -163,12 +163,12 @@ def bilateral(points, normals, k: int = 24, sharpness_angle: float = 30.0,
     for _ in range(iterations):
         psp.bilateral_smooth_point_set(ps, k, radius, angle)
     ids = point_set_ids(ps)
+    if len(ids) != len(X) or len(np.unique(ids)) != len(X):
+        raise RuntimeError(f"{func}: CGAL returned {len(ids)} points for {len(X)}")
     Y = np.empty_like(X)
     NY = np.empty_like(N)
     Y[ids] = point_set_points(ps)
     NY[ids] = point_set_normals(ps)
-    if len(ids) != len(X) or len(np.unique(ids)) != len(X):
-        raise RuntimeError(f"{func}: CGAL returned {len(ids)} points for {len(X)}")
     lens = np.linalg.norm(NY, axis=1, keepdims=True)
     NY = np.divide(NY, lens, out=N.copy(), where=lens > 0)
     return Y + c, NY
@@ -194,7 +194,7 @@ def jet_smooth(points, k: int = 24, degree_fitting: int = 2, degree_monge: int =
     ps = to_point_set(Xc)
     _psp().jet_smooth_point_set(ps, k, radius, df, dm)
     ids = point_set_ids(ps)
-    if len(ids) != len(X):
+    if len(ids) != len(X) or len(np.unique(ids)) != len(X):
         raise RuntimeError(f"{func}: CGAL returned {len(ids)} points for {len(X)}")
     Y = np.empty_like(X)
     Y[ids] = point_set_points(ps)
@@ -338,8 +338,8 @@ def _grid_search(ps, Xc, count: int, rtol: float, max_iter: int) -> float:
     cell = math.exp(best[1])
     got = run(cell)
     if abs(got - count) > rtol * count:
-        log.info("grid_simplify_count: kept %d points for a target of %d (tolerance %.3g)",
-                 got, count, rtol)
+        log.info("grid_simplify_count: kept %d points for a target of %d "
+                 "(tolerance %.3g)", got, count, rtol)
     return cell
 
 

@@ -455,12 +455,20 @@ def _atomic_write(path: Path, text: str) -> None:
         raise
 
 
+def resolve_out_dir(out_dir: str | os.PathLike = "reports") -> Path:
+    """Absolute output folder: a relative ``out_dir`` is taken from the current
+    working directory (the installed package may live in site-packages, where
+    reports must never be written)."""
+    out = Path(out_dir)
+    return out if out.is_absolute() else Path.cwd() / out
+
+
 def write_report(name: str, markdown: str, data, out_dir: str | os.PathLike = "reports"
                  ) -> tuple[Path, Path]:
     """Write ``<out_dir>/<name>.md`` and ``<out_dir>/<name>.json`` atomically.
 
-    A relative ``out_dir`` is resolved against the project root (so benches
-    write to ``<repo>/reports`` whatever the working directory).  ``data`` is
+    A relative ``out_dir`` is resolved against the current working directory
+    (see :func:`resolve_out_dir`).  ``data`` is
     converted with :func:`to_jsonable` (NumPy types, Outcomes, NaN -> null) and
     serialised before anything is written, so a failure leaves no partial file.
     Each file is written to a temporary name and moved into place with
@@ -468,9 +476,7 @@ def write_report(name: str, markdown: str, data, out_dir: str | os.PathLike = "r
     """
     if not name or "/" in name or name.startswith("."):
         raise ValueError(f"write_report: bad report name {name!r}")
-    out = Path(out_dir)
-    if not out.is_absolute():
-        out = ROOT / out
+    out = resolve_out_dir(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     text = json.dumps(to_jsonable(data), indent=1, allow_nan=False, ensure_ascii=False)
     md_path, json_path = out / f"{name}.md", out / f"{name}.json"

@@ -21,7 +21,7 @@ import traceback
 from importlib import import_module
 from pathlib import Path
 
-from .harness import ROOT, environment_info, to_jsonable, write_report
+from .harness import environment_info, resolve_out_dir, to_jsonable, write_report
 
 log = logging.getLogger("pcprep")
 
@@ -32,11 +32,6 @@ TITLES = {
     "features": "Sharp features and hole boundaries (thesis ch. 7)",
     "saliency": "Saliency (thesis ch. 5)",
 }
-
-
-def _out_dir(out_dir) -> Path:
-    out = Path(out_dir)
-    return out if out.is_absolute() else ROOT / out
 
 
 def _run_step(family: str, speed: bool, quick: bool, seed: int, out_dir: str) -> dict:
@@ -92,7 +87,7 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
     """
     from . import figures
 
-    out = _out_dir(out_dir)
+    out = resolve_out_dir(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     env = environment_info()

@@ -109,7 +109,8 @@ def _kkt_try(G, c, lam, coef, act, kkt_tol):
     inact_ok = np.where(act, True, np.abs(grad) <= scale * (1.0 + kkt_tol)).all(axis=1)
     # stationarity on the support (fails where the block was singular)
     cmax = np.maximum(np.abs(c).max(axis=1, initial=0.0), 1.0)[:, None]
-    act_ok = np.where(act, np.abs(grad - lam[:, None] * s) <= kkt_tol * cmax, True).all(axis=1)
+    stat = np.abs(grad - lam[:, None] * s) <= kkt_tol * cmax
+    act_ok = np.where(act, stat, True).all(axis=1)
     good = sign_ok & inact_ok & act_ok & np.isfinite(a).all(axis=1)
     return np.where(good[:, None], a, coef), good
 
@@ -133,7 +134,7 @@ def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol):
             new = _soft(gl[:, j] + dl[:, j] * old, laml) * invl[:, j]
             delta = new - old
             al[:, j] = new
-            gl -= Gl[:, :, j] * delta[:, None]
+            gl -= Gl[:, j, :] * delta[:, None]  # G symmetric: row j, contiguous
             np.maximum(change, np.abs(delta) * sdl[:, j], out=change)
         done = change <= stop
         if sweeps in _CHECKS or sweeps % 64 == 0 or sweeps == max_iter:
@@ -150,9 +151,10 @@ def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol):
             if len(live) == 0:
                 break
             Gl, cl, gl, al = Gl[keep], cl[keep], gl[keep], al[keep]
-            laml, invl, dl, sdl, stop = laml[keep], invl[keep], dl[keep], sdl[keep], stop[keep]
+            laml, invl, dl = laml[keep], invl[keep], dl[keep]
+            sdl, stop = sdl[keep], stop[keep]
     if len(live):
-        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol, drop_one_max=len(live))
+        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol, drop_one_max=max(n // 20, 64))
         coef[live] = exact
         converged[live[good]] = True
     return coef, converged, sweeps
@@ -246,7 +248,7 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
         coef[s:e], conv[s:e] = a, ok
         n_iter = max(n_iter, it)
     if not conv.all():
-        log.info("lasso_batched: %d of %d problems hit max_iter=%d", int((~conv).sum()), n,
-                 max_iter)
+        log.info("lasso_batched: %d of %d problems hit max_iter=%d",
+                 int((~conv).sum()), n, max_iter)
     residual = x - np.einsum("ndm,nm->nd", D, coef)
     return BatchedLasso(coef, residual, n_iter, conv)

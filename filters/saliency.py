@@ -15,8 +15,10 @@ Per point p_i (neighbourhood N_g(p_i) = points within radius r):
    (length r), and the neighbour nearest each ray end lends its F̄ as an atom;
 4. Lasso coding of F̄_i against the m atoms (5.6), solved for all points at
    once by :func:`filters.lasso_batched.lasso_batched`;
-5. S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) per neighbourhood, accumulated (mean)
-   over the overlapping neighbourhoods that contain each point.
+5. neighbourhood saliency S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) with
+   ``measure="mdl"``, or the residual term N(‖F̄_i − Dα‖₁) alone (the default,
+   see the function's Notes), accumulated (mean) over the overlapping
+   neighbourhoods that contain each point.
 
 Everything is vectorised over points and chunked; one k-NN query serves every
 step (plus the one of the MST normal orientation when normals are not given).
@@ -32,7 +34,11 @@ import numpy as np
 from ._params import Param, resolve_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from .neighbors import average_spacing, build_tree, centered, orient_normals_mst
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import (breadth_first_order, connected_components,
+                                  minimum_spanning_tree)
+
+from .neighbors import SPACING_K, build_tree, centered
 
 log = logging.getLogger("pcprep")
 
@@ -42,7 +48,7 @@ CHUNK = 16_384
 MIN_POINTS = 10
 #: coordinate-descent sweeps and tolerance of the Lasso (5.6); the measures used
 #: (‖α‖₀ with a 1e-10 threshold, the residual) are stable long before this
-LASSO_ITER = 64
+LASSO_ITER = 32
 LASSO_TOL = 1e-7
 
 PARAMS = (
@@ -52,10 +58,10 @@ PARAMS = (
           "neighbourhoods (atoms) per point", low=3, high=32, unit="count"),
     Param("alpha", float, 0.9, "Weight λ of ‖α‖₁ in the Lasso (5.6), thesis value 0.9",
           low=0.0, high=100.0, closed="right"),
-    Param("measure", str, "residual", "Neighbourhood saliency: 'mdl' = N(‖α‖₀)·N(residual) "
-          "(5.7, thesis); 'residual' = N(residual) alone (see Notes)",
+    Param("measure", str, "residual", "Neighbourhood saliency: 'mdl' = "
+          "N(‖α‖₀)·N(residual) (5.7, thesis); 'residual' = N(residual) alone (see Notes)",
           choices=("mdl", "residual")),
-    Param("k_max", int, 48, "Cap on the neighbours kept within the radius", low=8,
+    Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=8,
           high=512, unit="count", advanced=True),
     Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
           low=0, optional=True, advanced=True),
@@ -128,22 +134,31 @@ class _Hood:
         return out
 
 
-def neighbourhoods(points: np.ndarray, r: float, k_max: int, tree=None) -> _Hood:
-    """Radius-r neighbourhoods capped at ``k_max`` points, from one chunked k-NN
-    query (int32 indices keep a 1M-point cloud at ~200 MB)."""
+def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None
+                   ) -> tuple[_Hood, float]:
+    """Radius neighbourhoods (radius ``radius_h`` × h) capped at ``k_max`` points and
+    the average spacing h, from ONE chunked k-NN query: h is the mean distance to
+    the 6 nearest neighbours (columns 1-6 of the same query, thesis §4.5.1).
+    int32 indices and float32 distances keep a 1M-point cloud at ~250 MB."""
     tree = build_tree(points) if tree is None else tree
     n = len(points)
-    k = min(k_max, n)
+    k = min(max(k_max, SPACING_K + 1), n)
     idx = np.zeros((n, k), dtype=np.int32)
-    count = np.zeros(n, dtype=np.int64)
+    dist = np.zeros((n, k), dtype=np.float32)
+    total = 0.0
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         d, j = tree.query(points[s:e], k=k, workers=-1)
-        if k == 1:
-            d, j = d[:, None], j[:, None]
         idx[s:e] = j
-        count[s:e] = np.maximum((d <= r).sum(axis=1), 1)
-    return _Hood(idx, count)
+        dist[s:e] = d
+        total += float(d[:, 1:SPACING_K + 1].sum())
+    h = total / (n * SPACING_K)
+    if not np.isfinite(h) or h <= 0.0:
+        raise PointCloudError("saliency_sparse_mdl: every point coincides with its "
+                              "neighbours (h = 0)")
+    r = np.float32(radius_h * h * (1.0 + 1e-6))
+    count = np.maximum((dist <= r).sum(axis=1), 1)
+    return _Hood(idx, count), h
 
 
 def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
@@ -181,7 +196,8 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         A = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=-1) * w[..., None]
         At = A.transpose(0, 2, 1)
         M = np.matmul(At, A)
-        M += ridge * np.eye(6) * np.maximum(np.trace(M, axis1=1, axis2=2), 1.0)[:, None, None]
+        tr = np.maximum(np.trace(M, axis1=1, axis2=2), 1.0)
+        M += ridge * np.eye(6) * tr[:, None, None]
         q = np.linalg.solve(M, np.matmul(At, (z * w)[:, :, None]))[:, :, 0]
         a, b, c, du, dv = q[:, 0], q[:, 1], q[:, 2], q[:, 3], q[:, 4]
         g2 = 1.0 + du * du + dv * dv
@@ -189,6 +205,56 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         # principal curvatures of the Hessian (small-slope approximation)
         total[s:e] = 2.0 * np.sqrt(a * a + c * c + 0.5 * b * b) / r
     return frames, gauss, total
+
+
+def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
+                        k: int = 8) -> np.ndarray:
+    """MST sign propagation (Hoppe et al. 1992) on the ``k`` nearest neighbours
+    already held in ``hood`` (no new k-NN query, int32 graph): the same algorithm
+    and sign convention as :func:`filters.neighbors.orient_normals_mst` (each
+    connected component rooted at its highest point, normal toward +z), with
+    about half its peak memory at 1M points."""
+    n = len(points)
+    kk = min(k + 1, hood.idx.shape[1])
+    nb = hood.idx[:, 1:kk]
+    m = nb.shape[1]
+    if m == 0:
+        return normals.copy()
+    cost = np.zeros((n, m))
+    for s in range(0, n, CHUNK):
+        e = min(n, s + CHUNK)
+        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[nb[s:e]]))
+        cost[s:e] = 1.0 - dots + 1e-9  # strictly positive so every edge is stored
+    graph = csr_matrix((cost.ravel(), nb.ravel(), np.arange(0, n * m + 1, m)),
+                       shape=(n, n))
+    del cost
+    mst = minimum_spanning_tree(graph)
+    del graph
+    _, labels = connected_components(mst, directed=False)
+    parent = np.full(n, -1, dtype=np.int64)
+    order = np.lexsort((-points[:, 2], labels))
+    first = np.ones(n, dtype=bool)
+    first[1:] = labels[order[1:]] != labels[order[:-1]]
+    roots = order[first]
+    for r in roots:  # one BFS per connected component (not per point)
+        _, pred = breadth_first_order(mst, int(r), directed=False,
+                                      return_predecessors=True)
+        comp = pred >= 0
+        parent[comp] = pred[comp]
+    parent[roots] = roots
+    is_root = np.zeros(n, dtype=bool)
+    is_root[roots] = True
+    rel = np.sign(np.einsum("ij,ij->i", normals, normals[parent]))
+    rel[(rel == 0) | is_root] = 1.0
+    root_sign = np.where(normals[:, 2] < 0, -1.0, 1.0)
+    acc, ptr = rel.copy(), parent.copy()
+    live = ~is_root[ptr]
+    while live.any():  # pointer jumping: O(log depth) vectorised passes
+        nxt = ptr[live]
+        acc[live] = acc[live] * acc[nxt]
+        ptr[live] = ptr[nxt]
+        live = ~is_root[ptr]
+    return normals * (acc * root_sign[ptr])[:, None]
 
 
 def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
@@ -222,7 +288,8 @@ def _normalise(v: np.ndarray) -> np.ndarray:
 
 
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
-                        alpha: float = 0.9, measure: str = "residual", k_max: int = 48, seed: int | None = None
+                        alpha: float = 0.9, measure: str = "residual", k_max: int = 32,
+                        seed: int | None = None
                         ) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (thesis ch.5).
 
@@ -243,7 +310,7 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     measure : {"residual", "mdl"}, default="residual"
         Neighbourhood saliency: the coding residual N(S_I), or the thesis'
         product N(S_M)·N(S_I) of eq. (5.7) (see Notes).
-    k_max : int, default=48
+    k_max : int, default=32
         Cap on the neighbours within the radius (the nearest are kept).
     seed : int or None
         Accepted for a uniform API; the filter is deterministic.
@@ -325,12 +392,13 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     >>> xy = g.uniform(-1, 1, (3000, 2))
     >>> z = 0.3 * np.exp(-(xy ** 2).sum(1) / 0.05)
     >>> res = saliency_sparse_mdl(np.column_stack([xy, z]))
-    >>> bool(res.saliency[np.hypot(*xy.T) < 0.2].mean() > res.saliency[np.hypot(*xy.T) > 0.7].mean())
+    >>> rad = np.hypot(*xy.T)
+    >>> bool(res.saliency[rad < 0.2].mean() > res.saliency[rad > 0.7].mean())
     True
     """
     func = "saliency_sparse_mdl"
-    p = resolve_params(PARAMS, dict(radius=radius, n_rays=n_rays, alpha=alpha, measure=measure, k_max=k_max,
-                                    seed=seed), func)
+    p = resolve_params(PARAMS, dict(radius=radius, n_rays=n_rays, alpha=alpha,
+                                    measure=measure, k_max=k_max, seed=seed), func)
     pts = as_points(points, func=func, min_points=MIN_POINTS)
     n = len(pts)
     nrm = None if normals is None else as_normals(normals, n, func=func)
@@ -338,18 +406,18 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     pts, _ = centered(pts)
 
     tree = build_tree(pts)
-    h = average_spacing(pts, tree=tree)
+    hood, h = neighbourhoods(pts, p["radius"], p["k_max"], tree)
+    del tree
     r = p["radius"] * h
-    hood = neighbourhoods(pts, r, p["k_max"], tree)
     if np.median(hood.count) < 6:
-        raise PointCloudError(f"{func}: neighbourhoods of radius {p['radius']} h hold fewer "
-                              "than 6 points (median); increase radius")
+        raise PointCloudError(f"{func}: neighbourhoods of radius {p['radius']} h hold "
+                              "fewer than 6 points (median); increase radius")
     log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, r,
              int(np.median(hood.count)))
 
     frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
     if nrm is None:
-        nrm = orient_normals_mst(pts, frames[:, :, 2], k=min(10, n - 1), tree=tree)
+        nrm = orient_normals_hood(pts, frames[:, :, 2], hood)
 
     # descriptors (5.2)-(5.4)
     F4 = np.column_stack([nrm, gauss * r * r])
@@ -365,7 +433,8 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         D = Fbar[atoms[s:e]].transpose(0, 2, 1)  # (c, 5, m)
-        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"], max_iter=LASSO_ITER, tol=LASSO_TOL)
+        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"], max_iter=LASSO_ITER,
+                            tol=LASSO_TOL)
         sparsity[s:e] = (np.abs(sol.coef) > 1e-10).sum(axis=1)
         resid[s:e] = _residual_norm(sol.residual)
         n_bad += int((~sol.converged).sum())

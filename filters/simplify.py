@@ -124,6 +124,7 @@ def saliency_scores(F: np.ndarray, *, n_atoms: int, alpha: float, max_iter: int,
     """K-SVD dictionary + Lasso codes → (Sf, nnz, residual), eqs (6.5)-(6.10)."""
     kres = sparse.ksvd(F, n_atoms, n_nonzero_coefs=min(3, F.shape[1]), max_iter=max_iter,
                        max_train=max_train, seed=seed, code_all=False)
+    log.info("simplify_sdbs: dictionary of %d atoms trained", n_atoms)
     codes = sparse.lasso_lars(F, kres.dictionary, alpha=alpha)
     nnz, res = sparse.code_length(codes, F, kres.dictionary)
     f = nnz / max(int(nnz.max()), 1)
@@ -209,6 +210,20 @@ def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
     log.info("simplify_sdbs: greedy removal in %d rounds (%d exact ball queries)",
              rounds, n_trunc)
     return state == 1
+
+
+def _knn32(P, k, tree):
+    """k-NN lists stored as float32 distances / int32 indices, queried in chunks
+    (half the memory of ``knn``'s float64 / int64 at 10^6 points)."""
+    n = len(P)
+    gd = np.zeros((n, k), dtype=np.float32)
+    gi = np.zeros((n, k), dtype=np.int32)
+    for s0 in range(0, n, CHUNK):
+        e = min(n, s0 + CHUNK)
+        d, i = tree.query(P[s0:e], k=k, workers=-1)
+        d, i = d.reshape(e - s0, k), i.reshape(e - s0, k)
+        gd[s0:e], gi[s0:e] = d, i
+    return gd, gi
 
 
 def _graph_k(rho_over_h: np.ndarray, n: int) -> int:
@@ -329,14 +344,16 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     P = P - P.mean(axis=0)
     tree = build_tree(P)
     F, h, _, _ = sdbs_features(P, N, p["k"], p["feature_scale"], tree=tree)
+    log.info("simplify_sdbs: features of %d points, h = %.4g", n, h)
     score, nnz, res = saliency_scores(F, n_atoms=p["n_atoms"], alpha=p["alpha"],
                                       max_iter=p["max_iter"], max_train=p["max_train"],
                                       seed=p["seed"])
     inv = 1.0 / np.maximum(score, p["sf_floor"])
     d0 = p["delta"] if target is None else _delta_guess(target, n, inv)
     kg = _graph_k(d0 * inv, n)
-    gd, gi = knn(P, kg, tree=tree)
-    gd, gi = gd.astype(np.float32), gi.astype(np.int32)
+    gd, gi = _knn32(P, kg, tree)
+    log.info("simplify_sdbs: saliency done; %d-NN lists for the removal, first delta %.4g h",
+             kg, d0)
 
     def run(dl):
         return greedy_keep(P, gd, gi, score, dl * h * inv, tree=tree)
@@ -357,7 +374,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
 
 def _delta_guess(target: int, n: int, inv: np.ndarray) -> float:
     """First δ: the kept balls tile the surface (area ∝ n h², a ball ∝ (δ h inv)²)."""
-    return float(np.sqrt(n / (target * np.mean(inv ** 2))) * 1.2)
+    return float(np.sqrt(n / (target * np.mean(inv ** 2))))
 
 
 def _search_delta(run, target: int, d: float, max_eval: int = 30):

@@ -96,7 +96,8 @@ def test_result_fields(bumpy):
     assert res.descriptors.shape == (n, 5) and res.atoms.shape == (n, 8)
     np.testing.assert_allclose(np.linalg.norm(res.normals, axis=1), 1.0)
     assert res.radius == pytest.approx(3.0 * res.h)
-    assert np.isfinite(res.saliency).all() and 0 <= res.saliency.min() <= res.saliency.max() <= 1
+    assert np.isfinite(res.saliency).all()
+    assert 0 <= res.saliency.min() <= res.saliency.max() <= 1
     # atoms lie near the 1-ring: within r, mostly beyond r/2 on the open plane
     d = np.linalg.norm(s.points[res.atoms] - s.points[:, None, :], axis=2)
     assert (d <= res.radius * (1 + 1e-9)).all() and np.median(d) > 0.6 * res.radius
@@ -114,9 +115,8 @@ def test_quadric_curvature_of_a_sphere():
     p = g.normal(size=(6000, 3))
     R = 7.0
     p = R * p / np.linalg.norm(p, axis=1)[:, None]
-    h = average_spacing(p)
-    tree = build_tree(p)
-    hood = neighbourhoods(p, 3 * h, 48, tree)
+    hood, h = neighbourhoods(p, 3.0, 48, build_tree(p))
+    assert h == pytest.approx(average_spacing(p))
     frames, gauss, total = local_frames_and_curvature(p, hood, 3 * h)
     np.testing.assert_allclose(np.median(gauss), 1 / R ** 2, rtol=0.05)
     np.testing.assert_allclose(np.median(total), np.sqrt(2) / R, rtol=0.05)
@@ -150,7 +150,8 @@ def test_bad_clouds_raise(points, match):
 
 @pytest.mark.parametrize("kwargs, name", [
     ({"radius": 0.5}, "radius"), ({"radius": -1.0}, "radius"), ({"n_rays": 2}, "n_rays"),
-    ({"n_rays": 8.5}, "n_rays"), ({"alpha": 0.0}, "alpha"), ({"alpha": float("nan")}, "alpha"),
+    ({"n_rays": 8.5}, "n_rays"), ({"alpha": 0.0}, "alpha"),
+    ({"alpha": float("nan")}, "alpha"),
     ({"measure": "max"}, "measure"), ({"k_max": 4}, "k_max"), ({"seed": -1}, "seed"),
 ])
 def test_bad_parameters_raise(bumpy, kwargs, name):

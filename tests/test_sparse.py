@@ -131,3 +131,19 @@ def test_bad_input():
         sparse.ksvd(np.ones((0, 3)), 4)
     with pytest.raises(InvalidParameterError, match="seed"):
         sparse.ksvd(np.ones((5, 3)), 4, seed=-1)
+
+
+def test_lasso_lars_kkt_on_many_structured_signals():
+    # clustered signals (like point features) exercise atom screening, drops
+    # and re-entries; every code must satisfy the Lasso optimality conditions
+    rng = np.random.default_rng(6)
+    centres = rng.standard_normal((20, 7))
+    X = centres[rng.integers(0, 20, 4000)] + 0.3 * rng.standard_normal((4000, 7))
+    D = rng.standard_normal((200, 7))
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    alpha = 0.25
+    codes = sparse.lasso_lars(X, D, alpha=alpha).toarray()
+    cor = (X - codes @ D) @ D.T
+    assert np.abs(cor).max() <= alpha * (1 + 1e-7)
+    on = codes != 0
+    np.testing.assert_allclose(cor[on], alpha * np.sign(codes[on]), rtol=1e-6)

@@ -17,10 +17,10 @@ register(FilterSpec(
         "Length principle, thesis ch.5, eqs (5.2)-(5.7): each neighbourhood's mean "
         "descriptor (oriented normal, Gaussian curvature of a local quadric, global "
         "distinctness d) is Lasso-coded (λ = 0.9) against the descriptors of the "
-        "neighbourhoods at the ends of rays cast in its tangent plane; the code's residual "
-        "(and, with measure='mdl', its sparsity ‖α‖₀) is accumulated over the overlapping "
-        "neighbourhoods.  Written to vertex quality with a colour ramp, like MeshLab's "
-        "curvature filters."
+        "neighbourhoods at the ends of rays cast in its tangent plane; the code's "
+        "residual (and, with measure='mdl', its sparsity ‖α‖₀) is accumulated over the "
+        "overlapping neighbourhoods.  Written to vertex quality with a colour ramp, like "
+        "MeshLab's curvature filters."
     ),
     func=_m.saliency_sparse_mdl,
     params=_m.PARAMS,

@@ -1,0 +1,190 @@
+"""Tests of filters/features.py: sharp features and hole boundaries (thesis ch.7)."""
+
+import numpy as np
+import pytest
+
+from baselines.classic import projected_distance
+from baselines.datasets import add_noise, cut_holes, make_shape
+from filters import features as F
+from filters._validation import InvalidParameterError, PointCloudError
+from filters.metrics import precision_recall_f1
+from filters.neighbors import centered, knn, weighted_pca
+
+from tests.conftest import random_rotation
+
+
+@pytest.fixture(scope="module")
+def cube():
+    return make_shape("cube", n=8000, seed=0)
+
+
+@pytest.fixture(scope="module")
+def cube_result(cube):
+    return F.detect_sharp_features(cube.points, seed=0)
+
+
+@pytest.fixture(scope="module")
+def disc():
+    return make_shape("disc", n=8000, seed=0)
+
+
+# --------------------------------------------------------------- building blocks
+def test_sym3_eig_matches_eigh(rng):
+    a = rng.normal(size=(500, 3, 3))
+    cov = a @ a.transpose(0, 2, 1)
+    cov[:50, 2] = 0.0          # rank-deficient ones (flat neighbourhoods)
+    cov[:50, :, 2] = 0.0
+    lam, n = F.sym3_eig(cov)
+    ref, vec = np.linalg.eigh(cov)
+    np.testing.assert_allclose(lam, np.maximum(ref, 0), atol=1e-9 * ref.max())
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", n, vec[:, :, 0])), 1.0, atol=1e-6)
+
+
+def test_multiscale_features_equal_direct_pca(cube):
+    pts, _ = centered(cube.points)
+    ks = F.scale_sizes(8, 40, 10)
+    feat = F.multiscale_features(pts, ks, kind="sharp", h=cube.h)
+    _, idx = knn(pts, int(ks[-1]))
+    for s in (0, 4, len(ks) - 1):
+        k = int(ks[s])
+        pca = weighted_pca(pts, idx[:, :k])
+        lam0 = pca.eigenvalues[:, 0] * k / (k - 1) / cube.h ** 2   # 1/(k-1) of (7.1)
+        np.testing.assert_allclose(feat[:, 4 * s], lam0, atol=1e-10)
+        pd = np.abs(np.einsum("ij,ij->i", pts - pca.centroid, pca.normals)) / cube.h
+        np.testing.assert_allclose(feat[:, 4 * s + 3], pd, atol=1e-8)
+        np.testing.assert_allclose(feat[:, 4 * s + 2], pca.surface_variation, atol=1e-8)
+
+
+def test_otsu_splits_two_modes(rng):
+    v = np.concatenate([rng.normal(0, 1, 5000), rng.normal(10, 1, 500)])
+    t = F.otsu_threshold(v)
+    assert 3 < t < 7
+    assert F.otsu_threshold(np.r_[np.ones(90), 5 * np.ones(10)]) == pytest.approx(3.0)
+
+
+# --------------------------------------------------------------- sharp features
+def test_cube_edges_found_face_centres_not(cube, cube_result):
+    r = cube_result
+    assert r.mask.shape == (len(cube),) and r.mask.dtype == bool
+    p, rec, f1 = precision_recall_f1(r.mask, cube.sharp)
+    assert rec > 0.7 and p > 0.6
+    far = cube.extra["edge_distance"] > 6 * cube.h      # face interiors
+    assert r.mask[far].mean() < 0.01
+    np.testing.assert_array_equal(r.quality, r.mask.astype(float))
+    assert np.array_equal(r.mask, r.score > r.threshold)
+
+
+def test_beats_projected_distance_under_noise(cube):
+    noisy = add_noise(cube.points, cube.normals, sigma=0.3, h=cube.h, seed=1)
+    ours = precision_recall_f1(F.detect_sharp_features(noisy, seed=0).mask, cube.sharp)[2]
+    base = precision_recall_f1(projected_distance(noisy).mask, cube.sharp)[2]
+    assert ours > base + 0.1
+
+
+def test_thesis_beta_rule(cube):
+    r0 = F.detect_sharp_features(cube.points, seed=0, beta=1.0)
+    assert not r0.mask.any()                              # f > max f: nothing
+    r = F.detect_sharp_features(cube.points, seed=0, beta=0.5)
+    assert r.threshold == pytest.approx(0.5 * r.score.max())
+    assert r.beta == 0.5 and r.mask.any()
+
+
+def test_deterministic(cube, cube_result):
+    r = F.detect_sharp_features(cube.points, seed=0)
+    np.testing.assert_array_equal(r.mask, cube_result.mask)
+    np.testing.assert_array_equal(r.score, cube_result.score)
+
+
+def test_scale_and_rigid_motion_invariance(cube, cube_result):
+    R = random_rotation(3)
+    moved = 1000.0 * cube.points @ R.T + np.array([1e6, -2e6, 5e5])
+    pts0, _ = centered(cube.points)
+    pts1, _ = centered(moved)
+    ks = F.scale_sizes(8, 40, 10)
+    for kind in ("sharp", "hole"):
+        f0 = F.multiscale_features(pts0, ks, kind=kind)
+        f1 = F.multiscale_features(pts1, ks, kind=kind)
+        np.testing.assert_allclose(f1, f0, atol=1e-6 * np.abs(f0).max())
+    # the detections: OMP's stopping rule and Otsu are discontinuous, so points at
+    # the threshold may flip under round-off; the bulk must agree
+    r = F.detect_sharp_features(moved, seed=0)
+    assert (r.mask == cube_result.mask).mean() > 0.95
+
+
+def test_permutation_invariance(cube, cube_result, rng):
+    perm = rng.permutation(len(cube))
+    r = F.detect_sharp_features(cube.points[perm], seed=0)
+    # the K-SVD training subsample differs, so allow a few flips
+    assert (r.mask == cube_result.mask[perm]).mean() > 0.93
+
+
+def test_input_untouched(cube):
+    pts = cube.points.copy()
+    F.detect_sharp_features(pts, seed=0, n_scales=3, max_iter=2)
+    np.testing.assert_array_equal(pts, cube.points)
+
+
+# --------------------------------------------------------------- hole boundaries
+def test_disc_rim_is_boundary_centre_is_not(disc):
+    r = F.detect_hole_boundaries(disc.points, seed=0)
+    p, rec, f1 = precision_recall_f1(r.mask, disc.rim)
+    assert f1 > 0.7
+    centre = np.linalg.norm(disc.points[:, :2], axis=1) < 0.6
+    assert not r.mask[centre].any()
+
+
+def test_cut_hole_rims_found_creases_not_holes():
+    s = cut_holes(make_shape("cube", n=12000, seed=1), n_holes=3, radius=8.0, seed=0)
+    r = F.detect_hole_boundaries(s.points, seed=0)
+    p, rec, f1 = precision_recall_f1(r.mask, s.rim)
+    assert rec > 0.7
+    crease = s.sharp & ~s.rim
+    assert r.mask[crease].mean() < 0.1
+
+
+def test_holes_deterministic_and_invariant(disc):
+    a = F.detect_hole_boundaries(disc.points, seed=2)
+    b = F.detect_hole_boundaries(disc.points, seed=2)
+    np.testing.assert_array_equal(a.score, b.score)
+    moved = 0.001 * disc.points @ random_rotation(5).T + 7.0
+    c = F.detect_hole_boundaries(moved, seed=2)
+    assert (c.mask == a.mask).mean() > 0.95
+
+
+# --------------------------------------------------------------- bad input
+@pytest.mark.parametrize("fn", [F.detect_sharp_features, F.detect_hole_boundaries])
+def test_bad_points(fn, rng):
+    with pytest.raises(PointCloudError, match=fn.__name__):
+        fn(np.zeros((0, 3)))
+    bad = rng.normal(size=(500, 3))
+    bad[3, 1] = np.nan
+    with pytest.raises(PointCloudError, match="NaN"):
+        fn(bad)
+    with pytest.raises(PointCloudError, match="at least"):
+        fn(rng.normal(size=(20, 3)))
+    line = np.outer(np.linspace(0, 1, 500), [1.0, 2.0, 3.0])
+    with pytest.raises(PointCloudError, match="collinear"):
+        fn(line)
+    with pytest.raises(PointCloudError, match="rows"):
+        fn(rng.normal(size=(500, 3)), normals=np.ones((499, 3)))
+
+
+@pytest.mark.parametrize("kw", [dict(beta=1.5), dict(beta=-0.1), dict(k_min=50, k_max=20),
+                                dict(coder="ksvd"), dict(n_atoms=1), dict(seed=-1),
+                                dict(n_scales=0), dict(score="max")])
+def test_bad_params(kw, rng):
+    pts = rng.normal(size=(300, 3))
+    for fn in (F.detect_sharp_features, F.detect_hole_boundaries):
+        with pytest.raises(InvalidParameterError, match=fn.__name__):
+            fn(pts, **kw)
+
+
+def test_params_match_signatures():
+    import inspect
+    for fn, params in ((F.detect_sharp_features, F.PARAMS_SHARP),
+                       (F.detect_hole_boundaries, F.PARAMS_HOLES)):
+        sig = inspect.signature(fn).parameters
+        kw = [n for n, p in sig.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+        assert kw == [p.name for p in params]
+        for p in params:
+            assert sig[p.name].default == p.default
