@@ -407,8 +407,9 @@ def _markdown(data: dict) -> str:
                        else s["average"][m][key] * (1e6 if key == "mse" else 1.0)
                        for m in METHODS]
             for key, title, how in METRICS]
-    for r, (_, _, how) in zip(rows, METRICS):
-        r[0] = f"{r[0]} ({'lower' if how == 'min' else 'higher'} is better)"
+    for r, (key, _, how) in zip(rows, METRICS):
+        r[0] = (f"{r[0]}{' ×1e-6' if key == 'mse' else ''} "
+                f"({'lower' if how == 'min' else 'higher'} is better)")
     lines += [harness.markdown_table(["metric"] + list(METHODS), rows, fmt="{:.3f}"), ""]
     lines += ["## Targets", ""]
     checks = s["mad_checks"]

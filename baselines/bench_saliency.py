@@ -89,9 +89,9 @@ def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.nda
 # pictures
 
 def _heatmap(path: Path, panels: list[tuple[str, np.ndarray, np.ndarray]], ncols: int = 3,
-             max_points: int = 6000) -> Path:
-    """Grid of point scatters coloured by score (each panel min-max scaled for
-    display), fixed view; about 600×400 px."""
+             max_points: int = 3000) -> Path:
+    """Grid of point scatters coloured by score (each panel scaled between its 2nd
+    and 98th percentiles for display), fixed view; about 600×400 px."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -105,9 +105,9 @@ def _heatmap(path: Path, panels: list[tuple[str, np.ndarray, np.ndarray]], ncols
         if len(pts) > max_points:
             sel = np.random.default_rng(0).choice(len(pts), max_points, replace=False)
         p, v = pts[sel], vals[sel]
-        lo, hi = float(v.min()), float(v.max())
-        col = (v - lo) / (hi - lo if hi > lo else 1.0)
-        ax.scatter(*p.T, s=0.6, c=col, cmap="inferno", vmin=0, vmax=1, linewidths=0,
+        lo, hi = (float(q) for q in np.percentile(vals, [2.0, 98.0]))
+        col = np.clip((v - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+        ax.scatter(*p.T, s=1.6, c=col, cmap="inferno", vmin=0, vmax=1, linewidths=0,
                    depthshade=False)
         lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
         c, r = 0.5 * (lo3 + hi3), 0.5 * float(np.max(hi3 - lo3))
@@ -119,8 +119,13 @@ def _heatmap(path: Path, panels: list[tuple[str, np.ndarray, np.ndarray]], ncols
         ax.set_title(title, fontsize=7)
     fig.subplots_adjust(left=0, right=1, top=0.92, bottom=0, wspace=0, hspace=0.12)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[:, :, :3]
     plt.close(fig)
+    from PIL import Image  # matplotlib's own dependency
+
+    # a 64-colour palette keeps the scatter pictures far below 150 KB
+    Image.fromarray(rgb).quantize(colors=64).save(path, optimize=True)
     return path
 
 
@@ -157,7 +162,8 @@ def _evaluate(name: str, n: int, seed: int, conditions, img_dir: Path | None
         pics_base.append((title, pts, cm))
         log.info("bench_saliency: %s %s ours AUC %.3f", name, cond, row["ours"])
     if img_dir is not None:
-        _heatmap(img_dir / f"saliency_{name}.png", pics_ours + pics_base)
+        _heatmap(img_dir / f"saliency_{name}.png", pics_ours + pics_base,
+                 ncols=len(conditions))
     return rows
 
 
@@ -257,6 +263,24 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
            f"{targets['cad_0.3h_min_auc']:.3f}); above every simple baseline — see the "
            "bold entries: where a baseline is bold, the target is missed on that row.",
            ""]
+    beaten = sorted({m for c in summary for m in METHODS[2:]
+                     if summary[c][m] is not None and summary[c]["ours"] is not None
+                     and summary[c][m] > summary[c]["ours"]})
+    smooth = [r for r in rows if r["shape"] in SMOOTH]
+    smooth_wins = all(r["ours"] >= max(r[m] for m in METHODS[2:] if r.get(m) is not None)
+                      for r in smooth)
+    md += ["Findings (computed from the tables above):", "",
+           "* CAD baselines with a higher mean AUC than ours in at least one noise setting: "
+           + (", ".join(beaten) if beaten else "none") + ".  On sharp edges a 1 h wide "
+           "ground-truth band favours point-wise curvature; our score is a mean over "
+           "neighbourhoods of radius 3 h coded against neighbourhoods 3 h away, so it is "
+           "spatially smoother (see the heat maps).",
+           "* Bumps on a plane: ours is " + ("above every baseline in every noise setting."
+                                           if smooth_wins else "not above every baseline.")
+           + " Point-wise curvature and surface variation collapse under noise there.",
+           "* The thesis' product with ‖α‖₀ (5.7) ranks below the residual alone: ‖α‖₀ is "
+           "larger on flat regions, where the centre lies between near-duplicate atoms, "
+           "than on features (docstring Notes of `saliency_sparse_mdl`).", ""]
     if unver:
         md += ["## Side signal: per-face maps of unknown origin", "",
                "Pearson correlation of each score with the vertex average of the "

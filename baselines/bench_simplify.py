@@ -231,7 +231,7 @@ def _markdown(data) -> str:
           "round(rate·n); MeshLab's simplified cloud cannot honour a count and WLOP makes "
           "new points (kept counts in the JSON). Each method ran in a fresh process; SDBS "
           "with its defaults (S = 200 atoms, alpha = 0.25 ≙ thesis λ = 0.5, balanced "
-          "features, sf_floor = 0.3).", ""]
+          "features, sf_floor = 0.3, density_adapt = 0.5).", ""]
     cases = [c for c in data["cases"] if not c.get("missing")]
     missing = [c["model"] for c in data["cases"] if c.get("missing")]
     rates = sorted({c["rate"] for c in cases})

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._params import Param, resolve_params
 from . import sparse
+from ._params import Param, resolve_params
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
 from .neighbors import CHUNK, average_spacing, build_tree, centered, knn
 
@@ -239,8 +239,9 @@ class DetectionResult:
     beta: float | None
 
 
-def _common_params(k_min: int, k_max: int, tol: float, score: str) -> tuple[Param, ...]:
-    return (
+def _common_params(k_min: int, k_max: int, tol: float, score: str,
+                   extra: tuple[Param, ...] = ()) -> tuple[Param, ...]:
+    return extra + (
         Param("n_scales", int, 10, "Number of neighbourhood sizes whose features are "
               "concatenated (thesis §7.3.5 uses 10).", low=1, high=32, unit="count"),
         Param("k_min", int, k_min, "Smallest neighbourhood size (points, self included).",
@@ -277,9 +278,14 @@ def _common_params(k_min: int, k_max: int, tol: float, score: str) -> tuple[Para
 
 
 #: parameters of ``detect_sharp_features``
-PARAMS_SHARP = _common_params(8, 40, 0.1, "count")
+PARAMS_SHARP = _common_params(8, 40, 0.1, "l1")
 #: parameters of ``detect_hole_boundaries``
-PARAMS_HOLES = _common_params(16, 80, 0.3, "l1")
+PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
+    Param("min_shift", float, 0.2, "Geometric gate: a detected point must also have a "
+          "tangential centroid shift of at least this fraction of the radius of its "
+          "largest neighbourhood (an exact half-disc gives 0.42; 0 disables the gate "
+          "and leaves the pure code-rarity rule).", low=0.0, high=1.0,
+          unit="fraction"),))
 #: alias used by the bridge convention (one ``PARAMS`` per module)
 PARAMS = PARAMS_SHARP
 
@@ -317,9 +323,10 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
         # density drop at a border, the centroid shift grows)
         F[:, 0::3] *= -1.0
         F[:, 1::3] *= -1.0
-    Z = _standardise(F, robust=(kind == "hole"))
-    if kind == "hole":
-        Z = np.maximum(Z, 0.0)   # only deviations toward a border count
+    # robust one-sided standardisation: every column is oriented so that larger
+    # means more feature-like, centred on the bulk (median) and scaled by its
+    # spread (MAD); deviations toward the ordinary side are clipped to 0
+    Z = np.maximum(_standardise(F, robust=True), 0.0)
     d = Z.shape[1]
     n_atoms = p["n_atoms"]
     L = max(1, min(d, n_atoms) // 10)
@@ -340,7 +347,13 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
         score = l1 + resid
     beta = p["beta"]
     if beta is None:
-        T = otsu_threshold(score)
+        if kind == "sharp":
+            # Otsu on the score winsorised at its 98th percentile: the few
+            # extreme scores (corners, tips) would otherwise form Otsu's upper
+            # class alone
+            T = otsu_threshold(np.minimum(score, np.quantile(score, 0.98)))
+        else:
+            T = otsu_threshold(score)
         if kind == "hole" and (score > T).sum() > 1:
             # rims are a small minority: Otsu's upper class still holds the
             # tail of the interior; split it once more (the rare class of the
@@ -349,6 +362,8 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     else:
         T = float(beta * score.max())      # (7.10)
     mask = score > T                       # (7.11)
+    if kind == "hole" and p["min_shift"] > 0:
+        mask &= F[:, -1] >= p["min_shift"]  # largest-scale tangential shift / r
     log.info("%s: threshold %.4g selects %d of %d points", func, T, int(mask.sum()),
              len(pts))
     return DetectionResult(mask=mask, score=score, threshold=float(T),
@@ -358,7 +373,7 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
 
 def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: int = 8,
                           k_max: int = 40, n_atoms: int = 100, coder: str = "omp",
-                          alpha: float = 0.01, tol: float = 0.1, score: str = "count",
+                          alpha: float = 0.01, tol: float = 0.1, score: str = "l1",
                           beta: float | None = None, max_iter: int = 10,
                           max_train: int = 4000, seed: int | None = None
                           ) -> DetectionResult:
@@ -384,9 +399,10 @@ def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: in
         Lasso penalty λ (thesis §7.4.1), for ``coder="lasso_lars"``.
     tol : float, default=0.1
         OMP squared-residual target per feature, for ``coder="omp"``.
-    score : {"count", "l1"}, default="count"
-        ``"count"``: f = ‖α_j‖₀ (7.8)-(7.9) plus ``r/(1+r)`` of the residual r as a
-        tie-break in [0, 1); ``"l1"``: ‖α_j‖₁ + r.
+    score : {"l1", "count"}, default="l1"
+        ``"l1"``: f = ‖α_j‖₁ + r, the ℓ1 code length plus the residual r;
+        ``"count"``: f = ‖α_j‖₀ (7.8)-(7.9) plus ``r/(1+r)`` as a tie-break in
+        [0, 1) -- the thesis' rule.
     beta : float in [0, 1], optional
         T = β·max f (7.10).  None (default): Otsu's threshold on f.
     max_iter, max_train : int
@@ -416,9 +432,22 @@ def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: in
       with a count; with lengths in h and k ≥ 8 it lies within a few percent of
       1, and uniform weights let all scales come from one sorted k-NN query by
       prefix sums (O(n·k_max) instead of ten queries).
-    * Features are standardised per column (zero mean, unit variance) before
-      K-SVD: the raw columns differ by orders of magnitude (λ0 in h², ratios
-      in [0, 1]) and would otherwise let one column own the dictionary.
+    * Features are standardised per column before K-SVD: the raw columns
+      differ by orders of magnitude (λ0 in h², ratios in [0, 1]) and would
+      otherwise let one column own the dictionary.  The standardisation is
+      robust and one-sided: z = max(0, (F − median)/(1.4826·MAD)).  All four
+      features grow at a sharp feature (§7.3.1), so the bulk of smooth points
+      maps to near-zero signals that need no atoms, and a point's code grows
+      with how far, and at how many scales, it departs from the bulk: its
+      rarity.  With a plain z-score the flat points sit at a non-zero common
+      vector and the code length measured the distance to the *mean* (F1 on
+      the synthetic cube 0.80 clean / 0.63 at 0.3h noise, against 0.85 /
+      0.72 with this choice).
+    * Score: ``score="l1"`` (default) uses the ℓ1 size ‖α_j‖₁ of the code
+      -- the ℓ1 code length of (3.13), the thesis' own ‖α_j‖₁ of §7.3.3 --
+      plus the residual; the atom count of (7.8) (``score="count"``) is an
+      integer between 0 and a few atoms and ranks points more coarsely
+      (best-threshold F1 on the synthetic cube 0.84 against 0.87).
     * Coding: the dictionary is learned by K-SVD (OMP with ⌈d/10⌉ atoms per
       training signal) on a seeded subsample of ``max_train`` points; every
       point is then coded by OMP until its squared residual is at most
@@ -426,7 +455,9 @@ def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: in
       the thesis' notion of rarity (§7.3.3).  ``coder="lasso_lars"`` gives the
       thesis' Lasso coding with λ = ``alpha``; it is several times slower.
     * Threshold: Otsu by default, as the thesis suggests after Tran et al.
-      2014 (§7.4.1); ``beta`` restores (7.10).
+      2014 (§7.4.1), computed on the score winsorised at its 98th percentile
+      (the few extreme scores of corners and tips would otherwise form the
+      upper class alone); ``beta`` restores (7.10), T = β·max f.
 
     References
     ----------
@@ -448,7 +479,8 @@ def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: in
     return _detect(points, normals, p, "detect_sharp_features", "sharp")
 
 
-def detect_hole_boundaries(points, normals=None, *, n_scales: int = 10, k_min: int = 16,
+def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
+                           n_scales: int = 10, k_min: int = 16,
                            k_max: int = 80, n_atoms: int = 100, coder: str = "omp",
                            alpha: float = 0.01, tol: float = 0.3, score: str = "l1",
                            beta: float | None = None, max_iter: int = 10,
@@ -462,6 +494,10 @@ def detect_hole_boundaries(points, normals=None, *, n_scales: int = 10, k_min: i
     points : (n, 3) float
     normals : (n, 3) float, optional
         Validated, not used (the PCA normal of each scale is used).
+    min_shift : float, default=0.2
+        Geometric gate (see Notes): a detected point must have a tangential
+        centroid shift of at least ``min_shift`` times its largest scale's
+        radius.  0 disables it.
     n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
         As in ``detect_sharp_features`` (defaults k_min=16, k_max=80, tol=0.3).
     score : {"l1", "count"}, default="l1"
@@ -496,7 +532,8 @@ def detect_hole_boundaries(points, normals=None, *, n_scales: int = 10, k_min: i
       β ≤ 1 (f ≥ min f always).  We keep its idea -- boundary points are the
       rare codes -- as follows: each column is oriented so that larger means
       more border-like (epv and density drop at a border, the shift grows,
-      §7.3.1), robustly standardised (median, 1.4826·MAD) and clipped at 0, so
+      §7.3.1), robustly standardised (median, 1.4826·MAD) and clipped at 0
+      (as for edges), so
       the bulk of interior points have near-zero signals; a point's rarity is
       then the ℓ1 size of its code on the K-SVD dictionary, ‖α_j‖₁ (the
       ℓ1 code length of (3.13)), plus its residual, thresholded like (7.10) --
@@ -505,13 +542,21 @@ def detect_hole_boundaries(points, normals=None, *, n_scales: int = 10, k_min: i
       need similar numbers of atoms; the rims need *larger* coefficients.
       ``score="count"`` keeps the thesis' count reachable.
     * Automatic threshold: rims are a few percent of the points, and Otsu's
-      upper class on the rarity score still contains the tail of the interior;
-      Otsu is applied a second time inside that class (its rare part).
+      upper class on the rarity score still contains the tail of the interior; Otsu is applied a second time inside that class (its rare
+      part).
+    * Geometric gate ``min_shift``: the rarity rule always selects the tail
+      of the score, even on a closed surface (on a closed cube 11 % of the
+      points, its creases and corners).  A boundary point has a one-sided
+      neighbourhood: its tangential centroid shift at the largest scale is
+      about 0.42 r for an exact half-disc, and near 0 inside a surface.
+      Requiring at least 0.2 r (the default) removes the closed-cube false
+      positives (0.7 % left) and raised F1 on holed synthetic shapes (sphere
+      0.70 → 0.86, cube 0.58 → 0.76) without changing it on open scans.
     * Larger scales than for edges (16-80 points): the border signal is a
       first-order moment, noisy at small k.
     """
     p = resolve_params(PARAMS_HOLES, dict(
-        n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        min_shift=min_shift, n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
         max_train=max_train, seed=seed), "detect_hole_boundaries")
     return _detect(points, normals, p, "detect_hole_boundaries", "hole")

@@ -154,7 +154,8 @@ def _solve_chunk(G, c, lam, max_iter, tol, kkt_tol):
             laml, invl, dl = laml[keep], invl[keep], dl[keep]
             sdl, stop = sdl[keep], stop[keep]
     if len(live):
-        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol, drop_one_max=max(n // 20, 64))
+        exact, good = _kkt_polish(Gl, cl, laml, al, kkt_tol,
+                                  drop_one_max=max(n // 20, 64))
         coef[live] = exact
         converged[live[good]] = True
     return coef, converged, sweeps
@@ -248,7 +249,7 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
         coef[s:e], conv[s:e] = a, ok
         n_iter = max(n_iter, it)
     if not conv.all():
-        log.info("lasso_batched: %d of %d problems hit max_iter=%d",
+        log.debug("lasso_batched: %d of %d problems hit max_iter=%d",
                  int((~conv).sum()), n, max_iter)
     residual = x - np.einsum("ndm,nm->nd", D, coef)
     return BatchedLasso(coef, residual, n_iter, conv)

@@ -33,7 +33,9 @@ def filter_table_markdown() -> str:
         for p in spec.params:
             if p.advanced:
                 continue
-            default = "auto" if p.default is None else p.default
+            default = p.default
+            if default is None:
+                default = "none" if p.name == "seed" else "auto"
             unit = f" {p.unit}" if p.unit in ("h", "deg") else ""
             params.append(f"`{p.name}`={default}{unit}")
         rows.append(f"| `pcprep {spec.command}` | `{name}` | {produces[spec.kind]} | "

@@ -213,3 +213,18 @@ def test_registry_filter_on_meshset(noisy_cube):
     assert np.allclose(m.vertex_normal_matrix(), direct.normals, atol=1e-6)
     assert np.array_equal(m.vertex_selection_array(), direct.edge_mask)
     assert out["selected"] == int(direct.edge_mask.sum())
+
+
+def test_edge_correction_moves_edge_points_within_rho(noisy_cube):
+    s, noisy = noisy_cube
+    off = denoise_l1_tv(noisy, n_iter=1)
+    on = denoise_l1_tv(noisy, n_iter=1, edge_correction=True)
+    assert off.n_corrected == 0
+    assert on.n_corrected > 0
+    # the correction acts near the edges only
+    near = s.extra["edge_distance"] / s.h
+    step = np.linalg.norm(on.points - off.points, axis=1)
+    moved = step > 1e-9 * on.h
+    assert moved.sum() == on.n_corrected
+    assert step.max() < 0.7 * on.h  # |d| < ρh (4.19)
+    assert np.median(near[moved]) < 2.0

@@ -142,6 +142,14 @@ def test_cut_hole_rims_found_creases_not_holes():
     assert r.mask[crease].mean() < 0.1
 
 
+def test_closed_surface_has_almost_no_boundary(cube):
+    r = F.detect_hole_boundaries(cube.points, seed=0)
+    assert r.mask.mean() < 0.02
+    # without the geometric gate the pure rarity rule flags the creases
+    r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0)
+    assert r0.mask.sum() > r.mask.sum()
+
+
 def test_holes_deterministic_and_invariant(disc):
     a = F.detect_hole_boundaries(disc.points, seed=2)
     b = F.detect_hole_boundaries(disc.points, seed=2)

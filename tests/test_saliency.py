@@ -168,3 +168,26 @@ def test_bad_normals_raise(bumpy):
     nrm[3] = 0.0
     with pytest.raises(PointCloudError, match="zero-length"):
         saliency_sparse_mdl(s.points, nrm)
+
+
+def test_estimated_normals_point_outward_on_a_closed_surface():
+    s = make_shape("sphere", n=3000, seed=2, rotate=True)
+    res = saliency_sparse_mdl(s.points)
+    assert (np.einsum("ij,ij->i", res.normals, s.normals) > 0.9).mean() > 0.99
+
+
+def test_ray_atoms_match_a_naive_loop():
+    from filters.saliency import _ray_atoms
+
+    s = make_shape("bumpy_plane", n=800, seed=4)
+    hood, h = neighbourhoods(s.points, 3.0, 32, build_tree(s.points))
+    r = 3.0 * h
+    frames, _, _ = local_frames_and_curvature(s.points, hood, r)
+    fast = _ray_atoms(s.points, hood, frames, r, 8)
+    for i in range(0, 800, 37):
+        nb = hood.idx[i, :hood.count[i]]
+        uv = (s.points[nb] - s.points[i]) @ frames[i, :, :2]
+        for k in range(8):
+            th = 2 * np.pi * k / 8
+            end = r * np.array([np.cos(th), np.sin(th)])
+            assert fast[i, k] == nb[np.argmin(((uv - end) ** 2).sum(1))]

@@ -136,3 +136,23 @@ def test_bad_input(cube):
         f(line, ratio=0.5)
     with pytest.raises(PointCloudError, match="normals"):
         f(pts, normals=np.ones((3, 3)), ratio=0.1)
+
+
+def test_density_adapt_follows_input_density():
+    s = make_shape("bumpy_plane", n=6000, seed=1, uniform=False)
+    x = s.points[:, 0]
+    dense = x < np.median(x)
+    if s.points[dense].shape[0] and np.ptp(s.points[dense][:, 0]) > np.ptp(s.points[~dense][:, 0]):
+        dense = ~dense  # the half with the smaller extent is the denser one
+
+    def kept_ratio(beta):
+        res = S.simplify_sdbs(s.points, ratio=0.1, density_adapt=beta, seed=0, **FAST)
+        keep = np.zeros(len(x), dtype=bool)
+        keep[res.keep_idx] = True
+        return keep[dense].mean() / keep[~dense].mean()
+
+    # global h (thesis) thins the dense side much more; local spacing keeps
+    # a similar fraction on both sides
+    r0, r1 = kept_ratio(0.0), kept_ratio(1.0)
+    assert r0 < r1
+    assert abs(np.log(r1)) < abs(np.log(r0))

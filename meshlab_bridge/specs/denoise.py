@@ -14,8 +14,8 @@ register(FilterSpec(
     label="L1-median / L1-TV denoising",
     description=(
         "Feature-preserving denoising, thesis ch.4, eqs (4.2)-(4.19), Algorithm 4.1: per "
-        "point, a robust tangent plane by an L1-median height fit (ψ, θ weights, eq. 4.3) "
-        "with an L1 total-variation term on the normals (eq. 4.4), minimised by "
+        "point, a robust tangent plane by an L1-median height fit with ψ, θ weights (4.3) "
+        "with an L1 total-variation term on the normals (4.4), minimised by "
         "alternating a proximal-gradient normal step with soft thresholding (4.10)-(4.12) "
         "and an IRLS offset step (4.14); each point then moves onto its plane, bounded to "
         "ε = 4h from the input (4.15); edge points (normal variation V_n < th, 4.16-4.17) "
@@ -29,4 +29,5 @@ register(FilterSpec(
     mask_field="edge_mask",
     uses_normals=True,
     thesis="ch.4, eqs (4.2)-(4.19), Algorithm 4.1",
+    extra={"example": {"n_iter": 2}},
 ))
