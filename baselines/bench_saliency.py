@@ -14,7 +14,8 @@ Fig. 5.12 setting, 30 % random noise (σ = 0.3 h in a random direction).
 
 Baselines: surface variation λ0/Σλ of 16-NN PCA (thesis 2.5); curvature
 magnitude √(k1²+k2²) of the same radius-3h quadric fit the filter uses; |K|;
-the SDBS global score of chapter 6 when ``filters.simplify`` provides it.
+the SDBS global score Sf of chapter 6 (``filters.simplify.simplify_sdbs(...).score``)
+when that module is importable.
 
 ``run`` writes reports/saliency.md/.json and reports/img/saliency_*.png;
 ``run_speed`` writes reports/speed_saliency.md/.json.
@@ -53,16 +54,18 @@ METHODS = ("ours", "ours (thesis 5.7, mdl)", "surface variation", "curvature mag
 # baselines
 
 def _sdbs_score_fn():
-    """The ch.6 SDBS score function if ``filters.simplify`` offers one, else None."""
+    """The ch.6 SDBS global score Sf (6.10) as ``fn(points) -> (n,)``, or None when
+    ``filters.simplify`` is not available."""
     try:
-        from filters import simplify  # noqa: F401
+        from filters.simplify import simplify_sdbs
     except ImportError:
         return None
-    for name in ("sdbs_scores", "sdbs_score", "score_sdbs", "global_scores"):
-        fn = getattr(simplify, name, None)
-        if callable(fn):
-            return fn
-    return None
+
+    def score(points):
+        # Sf of every input point; the kept subset (ratio) does not affect it
+        return simplify_sdbs(points, ratio=0.5, seed=0).score
+
+    return score
 
 
 def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.ndarray]:
@@ -77,9 +80,7 @@ def baseline_scores(points: np.ndarray, radius: float = 3.0) -> dict[str, np.nda
     fn = _sdbs_score_fn()
     if fn is not None:
         try:
-            res = fn(points)
-            sc = getattr(res, "score", getattr(res, "scores", res))
-            out["SDBS global score"] = np.asarray(sc, dtype=np.float64).reshape(-1)
+            out["SDBS global score"] = np.asarray(fn(points), dtype=np.float64)
         except Exception as exc:  # noqa: BLE001 - reported, not fatal
             log.info("bench_saliency: SDBS score failed: %s", exc)
     return out
@@ -248,9 +249,9 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "λ = 0.9, residual measure); **ours (thesis 5.7, mdl)** = the thesis' product "
           "N(‖α‖₀)·N(residual); surface variation = λ0/Σλ of 16-NN PCA; curvature "
           "magnitude = √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself "
-          "uses; SDBS global score (ch. 6) "
-          + ("included." if sdbs else "— not available (`filters.simplify` has no score "
-             "function yet)."), "",
+          "uses; SDBS global score = Sf (6.10) of `simplify_sdbs` (ch. 6, defaults) "
+          + ("." if sdbs else "— not available (`filters.simplify` not importable)."),
+          "",
           _auc_table(rows), "",
           "Mean AUC over the CAD solids:", ""]
     md.append(harness.markdown_table(
@@ -269,18 +270,20 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     smooth = [r for r in rows if r["shape"] in SMOOTH]
     smooth_wins = all(r["ours"] >= max(r[m] for m in METHODS[2:] if r.get(m) is not None)
                       for r in smooth)
+    smooth_text = ("above every baseline in every noise setting." if smooth_wins
+                   else "not above every baseline.")
     md += ["Findings (computed from the tables above):", "",
-           "* CAD baselines with a higher mean AUC than ours in at least one noise setting: "
-           + (", ".join(beaten) if beaten else "none") + ".  On sharp edges a 1 h wide "
-           "ground-truth band favours point-wise curvature; our score is a mean over "
-           "neighbourhoods of radius 3 h coded against neighbourhoods 3 h away, so it is "
-           "spatially smoother (see the heat maps).",
-           "* Bumps on a plane: ours is " + ("above every baseline in every noise setting."
-                                           if smooth_wins else "not above every baseline.")
-           + " Point-wise curvature and surface variation collapse under noise there.",
-           "* The thesis' product with ‖α‖₀ (5.7) ranks below the residual alone: ‖α‖₀ is "
-           "larger on flat regions, where the centre lies between near-duplicate atoms, "
-           "than on features (docstring Notes of `saliency_sparse_mdl`).", ""]
+           "* CAD baselines with a higher mean AUC than ours in at least one noise "
+           "setting: " + (", ".join(beaten) if beaten else "none") + ".  On sharp "
+           "edges a 1 h wide ground-truth band favours point-wise curvature; our score "
+           "is a mean over neighbourhoods of radius 3 h coded against neighbourhoods "
+           "3 h away, so it is spatially smoother (see the heat maps).",
+           "* Bumps on a plane: ours is " + smooth_text + " Point-wise curvature and "
+           "surface variation collapse under noise there.",
+           "* The thesis' product with ‖α‖₀ (5.7) ranks below the residual alone: "
+           "‖α‖₀ is larger on flat regions, where the centre lies between "
+           "near-duplicate atoms, than on features (docstring Notes of "
+           "`saliency_sparse_mdl`).", ""]
     if unver:
         md += ["## Side signal: per-face maps of unknown origin", "",
                "Pearson correlation of each score with the vertex average of the "

@@ -7,11 +7,13 @@ Feature-preserving point-cloud denoising by L1-median height fitting with L1
 Per point p_i the filter looks for a unit normal n_i and an offset τ_i that
 minimise the energy (4.5)
 
-    E_i = Σ_j |h_ij − τ_i| ψ_ij θ_ij  +  λ Σ_j w_ij ‖n_i − n_j‖₁ ,
+    E_i = Σ_j |h_ij − τ_i| ψ_ij θ_ij  +  λ Σ_j w_ij ‖n_i − n_j‖ ,
     h_ij = n_iᵀ(p_i − p_j),  ψ = exp(−(h−τ)²/σ_h²),  θ = exp(−d²/σ_d²),
     w_ij = exp(−((1 − n_iᵀn_j)/(1 − cos σ_n))²),
 
-over the radius-r neighbourhood N_g(p_i), then moves p_i onto its robust plane.
+over the radius-r neighbourhood N_g(p_i) (‖·‖ is the thesis' component-wise ℓ1
+norm with ``tv_norm="l1"``, the rotation-invariant ℓ2 norm by default), then
+moves p_i onto its robust plane.
 Algorithm 4.1: n⁰ by the reweighted eigen-iteration (4.6)-(4.9); then, per outer
 iteration, an inner loop alternating one proximal-gradient normal step
 (4.10)-(4.12) and the IRLS weighted-median τ step (4.14); the bounded position
@@ -30,11 +32,13 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from ._params import Param, resolve_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_spread)
-from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
+from .neighbors import SPACING_K, build_tree, centered
 
 log = logging.getLogger("pcprep")
 
@@ -56,44 +60,43 @@ MST_K = 6
 TAU_IRLS = 3
 
 PARAMS = (
-    Param("lambda_tv", float, 0.2, "λ: weight of the L1 (TV) normal regulariser (4.5)",
+    Param("lambda_tv", float, 0.2, "Weight λ of the L1 (TV) normal regulariser (4.5)",
           low=0.0, high=100.0),
-    Param("sigma_h", float, 0.7, "σ_h: height sensitivity of ψ (4.3)", low=0.0, high=50.0,
+    Param("sigma_h", float, 0.7, "Height sensitivity σ_h of ψ (4.3)", low=0.0, high=50.0,
           closed="right", unit="h"),
-    Param("sigma_d", float, 3.0, "σ_d: spatial range of θ (4.3)", low=0.0, high=50.0,
+    Param("sigma_d", float, 3.0, "Spatial range σ_d of θ (4.3)", low=0.0, high=50.0,
           closed="right", unit="h"),
-    Param("radius", float, None, "r: neighbourhood radius; None = σ_d (thesis §4.5.1)",
+    Param("radius", float, None, "Neighbourhood radius r; None = σ_d (thesis §4.5.1)",
           low=0.0, high=50.0, closed="right", unit="h", optional=True),
-    Param("sigma_n_deg", float, 15.0, "σ_n: normal-similarity angle of w_ij (4.4) and "
+    Param("sigma_n_deg", float, 15.0, "Normal-similarity angle σ_n of w_ij (4.4) and "
           "of the edge detector (4.16)", low=0.0, high=90.0, closed="right", unit="deg"),
-    Param("rho", float, 0.7, "ρ: largest edge-correction move (4.19)", low=0.0, high=10.0,
+    Param("rho", float, 0.7, "Largest edge-correction move ρ (4.19)", low=0.0, high=10.0,
           unit="h"),
-    Param("delta", float, 1e-4, "δ: smallest edge-correction move (4.19)", low=0.0,
+    Param("delta", float, 1e-4, "Smallest edge-correction move δ (4.19)", low=0.0,
           high=1.0, unit="h"),
-    Param("epsilon", float, 4.0, "ε: largest total displacement from the input (4.15)",
+    Param("epsilon", float, 4.0, "Largest total displacement ε from the input (4.15)",
           low=0.0, high=100.0, closed="right", unit="h"),
-    Param("edge_threshold", float, 0.5, "th: V_n below this marks an edge point (4.17)",
+    Param("edge_threshold", float, 0.5, "Edge threshold th: V_n below it marks an edge point (4.17)",
           low=0.0, high=1.0, unit="fraction"),
-    Param("n_iter", int, 10, "outer iterations j_max (thesis §4.5.1: 10, 16, 20 or 50)",
-          low=1,
-          high=500, unit="count"),
-    Param("inner_iter", int, 2, "largest number of (n, τ) alternations per outer "
+    Param("n_iter", int, 10, "Outer iterations j_max (thesis §4.5.1: 10, 16, 20 or 50)",
+          low=1, high=500, unit="count"),
+    Param("inner_iter", int, 2, "Largest number of (n, τ) alternations per outer "
           "iteration", low=1, high=100, unit="count", advanced=True),
-    Param("init_iter", int, 3, "passes of the reweighted eigen-iteration (4.9) for n⁰",
+    Param("init_iter", int, 3, "Passes of the reweighted eigen-iteration (4.9) for n⁰",
           low=1, high=50, unit="count", advanced=True),
-    Param("tol", float, 1e-3, "inner loop stops when the RMS of ‖p^{k+1} − p^k‖ falls "
+    Param("tol", float, 1e-3, "Inner loop stops when the RMS of ‖p^{k+1} − p^k‖ falls "
           "below this", low=0.0, high=10.0, unit="h", advanced=True),
-    Param("edge_correction", bool, False, "apply the edge-point correction (4.18)-(4.19) "
+    Param("edge_correction", bool, False, "Apply the edge-point correction (4.18)-(4.19) "
           "(off by default: it lowered SNR on every benchmark model, see Notes)"),
-    Param("curvature_offset", bool, True, "move each point by the intercept of an "
+    Param("curvature_offset", bool, True, "Move each point by the intercept of an "
           "η-weighted fit h ≈ a + cρ² instead of τ (removes the shrinkage of (4.15) on "
           "curved parts); False = thesis", advanced=True),
-    Param("tv_norm", str, "l2", "norm of the normal differences in (4.4): 'l2' (isotropic, "
+    Param("tv_norm", str, "l2", "Norm of the normal differences in (4.4): 'l2' (isotropic, "
           "rotation invariant) or the thesis' component-wise 'l1'", choices=("l2", "l1"),
           advanced=True),
-    Param("k_max", int, 32, "cap on the neighbours kept within the radius", low=4,
+    Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=4,
           high=512, unit="count", advanced=True),
-    Param("seed", int, None, "accepted for a uniform API; the filter uses no randomness",
+    Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
           low=0, optional=True, advanced=True),
 )
 
@@ -504,6 +507,54 @@ def _edge_correct(ctx: _Ctx, normals: np.ndarray, edge: np.ndarray, rho: float,
     return int(moved.sum())
 
 
+def _orient_mst(x: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int) -> np.ndarray:
+    """Consistent orientation by MST propagation (Hoppe 1992) on the first ``k``
+    neighbours of the filter's own neighbour array (no second k-NN query; float32
+    edge costs keep the graph small at 10⁶ points).  Each connected component is
+    rooted at its highest point, whose normal is made to point toward +z, as in
+    :func:`filters.neighbors.orient_normals_mst`."""
+    n = len(x)
+    k = min(k, idx.shape[1] - 1)
+    if n < 2 or k < 1:
+        return normals.copy()
+    rows = np.repeat(np.arange(n, dtype=idx.dtype), k)
+    cols = idx[:, 1:k + 1].ravel()
+    cost = np.empty((n, k), dtype=np.float32)  # noqa: NPY-empty -- filled per column
+    for c in range(k):
+        cost[:, c] = np.abs(np.einsum("ij,ij->i", normals, normals[idx[:, c + 1]]))
+    cost = (1.0 - cost).ravel() + np.float32(1e-6)  # > 0 so every edge is stored
+    graph = coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
+    del rows, cols, cost
+    graph = graph.maximum(graph.T)
+    mst = minimum_spanning_tree(graph)
+    del graph
+    ncomp, labels = connected_components(mst, directed=False)
+    order = np.lexsort((-x[:, 2], labels))
+    first = np.ones(n, dtype=bool)
+    first[1:] = labels[order[1:]] != labels[order[:-1]]
+    roots = order[first]
+    parent = np.full(n, -1, dtype=np.int64)
+    sym = mst + mst.T
+    for r in roots:  # one BFS per connected component, not per point
+        _, pred = breadth_first_order(sym, int(r), directed=False, return_predecessors=True)
+        comp = pred >= 0
+        parent[comp] = pred[comp]
+    parent[roots] = roots
+    is_root = np.zeros(n, dtype=bool)
+    is_root[roots] = True
+    rel = np.where(np.einsum("ij,ij->i", normals, normals[parent]) < 0, -1.0, 1.0)
+    rel[is_root] = 1.0
+    acc, ptr = rel.copy(), parent.copy()
+    live = ~is_root[ptr]
+    while live.any():  # pointer jumping: the sign of i = product of rel up to its root
+        nxt = ptr[live]
+        acc[live] *= acc[nxt]
+        ptr[live] = ptr[nxt]
+        live = ~is_root[ptr]
+    sign = acc * np.where(normals[ptr, 2] < 0, -1.0, 1.0)
+    return normals * sign[:, None]
+
+
 # ---------------------------------------------------------------------------
 # public API
 
@@ -753,14 +804,14 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.2, sigma_h: floa
 
     inv = np.empty(n, dtype=np.int64)  # noqa: NPY-empty -- a permutation fills it
     inv[perm] = np.arange(n)
+    if normals is None:
+        nrm = _orient_mst(ctx.x, nrm, idx, MST_K)
     out_n = nrm[inv]
     out_p = ctx.x[inv] * h + centre
     if normals is not None:
         hint = as_normals(normals, n, func=func)
         flip = np.einsum("ij,ij->i", out_n, hint) < 0
         out_n[flip] *= -1.0
-    else:
-        out_n = orient_normals_mst(out_p, out_n, k=MST_K)
     vn = vn[inv]
     edge = vn < p["edge_threshold"]
     return DenoiseResult(points=out_p, normals=out_n, edge_mask=edge, edge_score=vn,

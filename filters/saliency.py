@@ -88,7 +88,7 @@ class SaliencyResult:
         The oriented unit normals used in the descriptor.
     curvature : (n,) float
         Gaussian curvature K of the quadric fits, in 1/length² of the input.
-    atoms : (n, n_rays) int
+    atoms : (n, n_rays) int32
         Index of the point whose neighbourhood is each atom.
     h : float
         Average spacing of the input.
@@ -221,14 +221,23 @@ def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
     m = nb.shape[1]
     if m == 0:
         return normals.copy()
-    cost = np.zeros((n, m))
+    # each undirected edge once: (i, j) is kept when i < j, or when i is not
+    # among j's own neighbours (mutual k-NN pairs would otherwise appear twice)
+    keep = np.zeros((n, m), dtype=bool)
+    cost = np.zeros((n, m), dtype=np.float32)
+    rows = np.arange(n, dtype=np.int32)
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
-        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[nb[s:e]]))
-        cost[s:e] = 1.0 - dots + 1e-9  # strictly positive so every edge is stored
-    graph = csr_matrix((cost.ravel(), nb.ravel(), np.arange(0, n * m + 1, m)),
-                       shape=(n, n))
-    del cost
+        j = nb[s:e]
+        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[j]))
+        cost[s:e] = 1.0 - dots + 1e-6  # strictly positive so every edge is stored
+        mutual = (nb[j] == rows[s:e, None, None]).any(axis=2)
+        keep[s:e] = (rows[s:e, None] < j) | ~mutual
+    cnt = keep.sum(axis=1)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(cnt, out=indptr[1:])
+    graph = csr_matrix((cost[keep].astype(np.float64), nb[keep], indptr), shape=(n, n))
+    del cost, keep
     mst = minimum_spanning_tree(graph)
     del graph
     _, labels = connected_components(mst, directed=False)
@@ -264,7 +273,7 @@ def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
     n = len(points)
     th = 2.0 * np.pi * np.arange(n_rays) / n_rays
     ends = r * np.stack([np.cos(th), np.sin(th)], axis=1)  # (m, 2)
-    atoms = np.zeros((n, n_rays), dtype=np.int64)
+    atoms = np.zeros((n, n_rays), dtype=np.int32)
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
         nb = points[hood.idx[s:e]] - points[s:e, None, :]
@@ -430,8 +439,14 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
              int(np.median(hood.count)))
 
     frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
+    # surroundings (§5.3.2.2) first, so that the frames are freed before the
+    # memory-hungry MST orientation
+    atoms = _ray_atoms(pts, hood, frames, r, p["n_rays"])
+    pca_normal = np.ascontiguousarray(frames[:, :, 2])
+    del frames
     if nrm is None:
-        nrm = orient_normals_hood(pts, frames[:, :, 2], hood)
+        nrm = orient_normals_hood(pts, pca_normal, hood)
+    del pca_normal
 
     # descriptors (5.2)-(5.4)
     F4 = np.column_stack([nrm, gauss * r * r])
@@ -439,8 +454,7 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     d = np.linalg.norm(Fbar4 - Fbar4.mean(axis=0), axis=1)
     Fbar = np.column_stack([Fbar4, hood.mean(d)])
 
-    # surroundings and coding (5.6)
-    atoms = _ray_atoms(pts, hood, frames, r, p["n_rays"])
+    # coding (5.6)
     sparsity = np.zeros(n, dtype=np.int64)
     resid = np.zeros(n)
     n_bad = 0

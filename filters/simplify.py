@@ -15,8 +15,8 @@ import numpy as np
 
 from . import sparse
 from ._params import Param, resolve_params
-from ._validation import (InvalidParameterError, as_normals, as_points, check_seed,
-                          check_spread)
+from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
+                          check_seed, check_spread)
 from .neighbors import CHUNK, build_tree, knn, weighted_pca
 
 log = logging.getLogger("pcprep")
@@ -95,9 +95,10 @@ def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=
     tree = build_tree(P) if tree is None else tree
     dist, idx = knn(P, k, tree=tree)
     h = float(dist[:, 1:7].mean())  # mean distance to the 6 nearest neighbours
-    if not np.isfinite(h) or h <= 0.0:
-        raise InvalidParameterError("simplify_sdbs: every point coincides with its "
-                                    "neighbours (h = 0)")
+    diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    if not np.isfinite(h) or h <= 1e-9 * diag:
+        raise PointCloudError("simplify_sdbs: every point coincides with its "
+                              "neighbours (h = 0)")
     # (6.1) with exp(-d²/s²), s = the point's mean neighbour distance (the
     # thesis' exp(-d²/k_i²) mixes a length with a count)
     s = np.maximum(dist[:, 1:].mean(axis=1), 1e-300)
@@ -162,6 +163,22 @@ def _cover_edges(P, dist, idx, rank, rho, tree):
     n_trunc = 0
     if trunc:
         t = np.concatenate(trunc)
+        k2 = min(n, 4 * K)
+        if t.size and k2 > K:
+            # second try: 4× longer k-NN lists for the truncated rows only
+            t_left = []
+            for s0 in range(0, t.size, CHUNK // 4):
+                tt = t[s0:s0 + CHUNK // 4]
+                d2, i2 = tree.query(P[tt], k=k2, workers=-1)
+                r = rho[tt][:, None]
+                m = (d2[:, 1:] <= r) & (rank[i2[:, 1:]] > rank[tt][:, None])
+                full = d2[:, -1] <= r[:, 0] if k2 < n else np.zeros(len(tt), dtype=bool)
+                m[full] = False
+                ii, jj = np.nonzero(m)
+                src_l.append(tt[ii].astype(np.int32))
+                dst_l.append(i2[:, 1:][ii, jj].astype(np.int32))
+                t_left.append(tt[full])
+            t = np.concatenate(t_left)
         n_trunc = int(t.size)
         for s0 in range(0, t.size, CHUNK // 4):
             tt = t[s0:s0 + CHUNK // 4]

@@ -22,6 +22,7 @@ atoms): scikit-learn OMP (3 atoms) ≈ 100-150 µs per signal, ``omp`` below
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass
 
@@ -31,6 +32,20 @@ from scipy import sparse as sp
 from ._validation import InvalidParameterError, check_param, check_seed
 
 log = logging.getLogger("pcprep")
+
+try:  # installed with scikit-learn
+    from threadpoolctl import threadpool_limits
+except ImportError:  # pragma: no cover
+    threadpool_limits = None
+
+
+def _single_blas():
+    """The solvers' matrix products are skinny ((c, d≤40) × (d, S)); BLAS
+    threads cost more than they bring there (3× slower measured on the shared
+    2-core machine), so they run single-threaded."""
+    if threadpool_limits is None:  # pragma: no cover
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
 
 #: signals per chunk in the batched solvers
 CHUNK = 32_768
@@ -177,12 +192,13 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
         L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
                         low=1, high=min(d, S))
     rows, cols, vals = [], [], []
-    for s0 in range(0, m, CHUNK):
-        e = min(m, s0 + CHUNK)
-        sup, coef = _omp_chunk(X[s0:e], D, L, tol)
-        rows.append(np.repeat(np.arange(s0, e), L))
-        cols.append(sup.ravel())
-        vals.append(coef.ravel())
+    with _single_blas():
+        for s0 in range(0, m, CHUNK):
+            e = min(m, s0 + CHUNK)
+            sup, coef = _omp_chunk(X[s0:e], D, L, tol)
+            rows.append(np.repeat(np.arange(s0, e), L))
+            cols.append(sup.ravel())
+            vals.append(coef.ravel())
     return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 
@@ -392,12 +408,13 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
         max_steps = 8 * K
     max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
     rows, cols, vals = [], [], []
-    for s0 in range(0, m, CHUNK):
-        e = min(m, s0 + CHUNK)
-        act, beta = _lasso_chunk(X[s0:e], D, alpha, K, max_steps)
-        rows.append(np.repeat(np.arange(s0, e), K))
-        cols.append(act.ravel())
-        vals.append(beta.ravel())
+    with _single_blas():
+        for s0 in range(0, m, CHUNK):
+            e = min(m, s0 + CHUNK)
+            act, beta = _lasso_chunk(X[s0:e], D, alpha, K, max_steps)
+            rows.append(np.repeat(np.arange(s0, e), K))
+            cols.append(act.ravel())
+            vals.append(beta.ravel())
     return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 
@@ -556,6 +573,15 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         nrm[zero] = np.linalg.norm(D[zero], axis=1)
     D /= nrm[:, None]
     errors = []
+    with _single_blas():
+        _ksvd_iterate(Xt, D, L, tol, max_iter, rng, errors)
+    codes = omp(X if code_all else Xt, D, n_nonzero_coefs=L, tol=tol)
+    return KSVDResult(dictionary=D, codes=codes, errors=np.asarray(errors), train_idx=train_idx)
+
+
+def _ksvd_iterate(Xt, D, L, tol, max_iter, rng, errors):
+    """Alternate OMP coding and the atom update (Alg. 3.3); D is updated in place."""
+    mt = len(Xt)
     for it in range(max_iter):
         sup, coef = [], []
         for s0 in range(0, mt, CHUNK):
@@ -568,5 +594,3 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         n_unused = _update_atoms(Xt, D, sup, coef, rng)
         log.info("ksvd: iteration %d, rms residual %.4g, %d unused atom(s) replaced",
                  it + 1, errors[-1], n_unused)
-    codes = omp(X if code_all else Xt, D, n_nonzero_coefs=L, tol=tol)
-    return KSVDResult(dictionary=D, codes=codes, errors=np.asarray(errors), train_idx=train_idx)

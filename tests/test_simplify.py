@@ -156,3 +156,10 @@ def test_density_adapt_follows_input_density():
     r0, r1 = kept_ratio(0.0), kept_ratio(1.0)
     assert r0 < r1
     assert abs(np.log(r1)) < abs(np.log(r0))
+
+
+def test_duplicated_points_rejected():
+    rng = np.random.default_rng(0)
+    P = np.repeat(rng.random((50, 3)), 20, axis=0)
+    with pytest.raises(PointCloudError, match="h = 0"):
+        S.simplify_sdbs(P, ratio=0.1)

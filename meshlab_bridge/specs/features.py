@@ -29,6 +29,7 @@ register(FilterSpec(
     scalar_field="score",
     uses_normals=False,
     thesis="ch.7, eqs (7.1)-(7.4), (7.8)-(7.11), §7.3.5",
+    extra={"example": {"seed": 0}},
 ))
 
 register(FilterSpec(
@@ -51,4 +52,5 @@ register(FilterSpec(
     scalar_field="score",
     uses_normals=False,
     thesis="ch.7, eqs (7.5)-(7.7), (7.12)-(7.13), §7.3.4",
+    extra={"example": {"seed": 0}},
 ))
