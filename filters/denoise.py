@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.sparse.csgraph import (breadth_first_order, connected_components,
+                                  minimum_spanning_tree)
 
 from ._params import Param, resolve_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
@@ -76,7 +77,8 @@ PARAMS = (
           high=1.0, unit="h"),
     Param("epsilon", float, 4.0, "Largest total displacement ε from the input (4.15)",
           low=0.0, high=100.0, closed="right", unit="h"),
-    Param("edge_threshold", float, 0.5, "Edge threshold th: V_n below it marks an edge point (4.17)",
+    Param("edge_threshold", float, 0.5,
+          "Edge threshold th: V_n below it marks an edge point (4.17)",
           low=0.0, high=1.0, unit="fraction"),
     Param("n_iter", int, 10, "Outer iterations j_max (thesis §4.5.1: 10, 16, 20 or 50)",
           low=1, high=500, unit="count"),
@@ -91,7 +93,8 @@ PARAMS = (
     Param("curvature_offset", bool, True, "Move each point by the intercept of an "
           "η-weighted fit h ≈ a + cρ² instead of τ (removes the shrinkage of (4.15) on "
           "curved parts); False = thesis", advanced=True),
-    Param("tv_norm", str, "l2", "Norm of the normal differences in (4.4): 'l2' (isotropic, "
+    Param("tv_norm", str, "l2",
+          "Norm of the normal differences in (4.4): 'l2' (isotropic, "
           "rotation invariant) or the thesis' component-wise 'l1'", choices=("l2", "l1"),
           advanced=True),
     Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=4,
@@ -274,7 +277,8 @@ def _smallest_eigvec(c00, c01, c02, c11, c12, c22):
     v = cands[rows, best]
     ln = nrm[rows, best]
     ok = ln > 1e-300
-    v = np.where(ok[:, None], v / np.where(ok, ln, 1.0)[:, None], np.array([0.0, 0.0, 1.0]))
+    v = np.where(ok[:, None], v / np.where(ok, ln, 1.0)[:, None],
+                 np.array([0.0, 0.0, 1.0]))
     return v
 
 
@@ -343,7 +347,8 @@ def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
     def select(s, e):
         d, _, valid, theta = _geometry(ctx, s, e)
         m = len(cols) + 1
-        cand = np.concatenate([normals[s:e, None, :], normals[ctx.idx[s:e][:, cols]]], axis=1)
+        cand = np.concatenate([normals[s:e, None, :], normals[ctx.idx[s:e][:, cols]]],
+                              axis=1)
         ok = np.concatenate([np.ones((e - s, 1), bool), valid[:, cols]], axis=1)
         c32 = cand.astype(F32)
         hgt = (d[0][:, None, :] * c32[:, :, 0:1] + d[1][:, None, :] * c32[:, :, 1:2]
@@ -507,7 +512,8 @@ def _edge_correct(ctx: _Ctx, normals: np.ndarray, edge: np.ndarray, rho: float,
     return int(moved.sum())
 
 
-def _orient_mst(x: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int) -> np.ndarray:
+def _orient_mst(x: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int
+                ) -> np.ndarray:
     """Consistent orientation by MST propagation (Hoppe 1992) on the first ``k``
     neighbours of the filter's own neighbour array (no second k-NN query; float32
     edge costs keep the graph small at 10⁶ points).  Each connected component is
@@ -536,7 +542,8 @@ def _orient_mst(x: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int) -> 
     parent = np.full(n, -1, dtype=np.int64)
     sym = mst + mst.T
     for r in roots:  # one BFS per connected component, not per point
-        _, pred = breadth_first_order(sym, int(r), directed=False, return_predecessors=True)
+        _, pred = breadth_first_order(sym, int(r), directed=False,
+                                      return_predecessors=True)
         comp = pred >= 0
         parent[comp] = pred[comp]
     parent[roots] = roots
@@ -583,7 +590,8 @@ def _prepare(points, normals, p: dict, func: str):
     del tree, dist, ii
     h = dsum / (len(x) * SPACING_K)
     if not np.isfinite(h) or h <= 0.0:
-        raise PointCloudError(f"{func}: every point coincides with its neighbours (h = 0)")
+        raise PointCloudError(
+            f"{func}: every point coincides with its neighbours (h = 0)")
     if nrm is not None:
         nrm = nrm[perm]
     return x / h, nrm, centre, h, idx, perm
@@ -886,7 +894,8 @@ def energy_l1_tv(points, normals, tau=None, *, lambda_tv: float = 0.2,
     if normals is None:
         raise InvalidParameterError(f"{func}: normals must be given")
     x, nrm, _, _, idx, perm = _prepare(points, normals, p, func)
-    t = np.zeros(len(x)) if tau is None else np.asarray(tau, dtype=np.float64).reshape(len(x))
+    t = np.zeros(len(x)) if tau is None else \
+        np.asarray(tau, dtype=np.float64).reshape(len(x))
     t = t[perm]
     ctx = _context(x, idx, p)
     ctx.refresh()

@@ -156,7 +156,7 @@ def _cmd_filter(args) -> None:
         require = ("normal",)
     else:
         require = ()
-    save_cloud(out, args.output, require=require)
+    save_cloud(out, args.output, require=require, ramp=spec.kind == "scalar")
     log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
 
 

@@ -146,13 +146,15 @@ def load_cloud(path: str) -> Cloud:
     return cloud
 
 
-def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = ()) -> None:
+def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
+               ramp: bool = False) -> None:
     """Write ``cloud`` atomically: a temporary file in the same folder is
     renamed over ``path`` only once fully written, so a failure never leaves a
     partial output.  Normals, colours and quality are saved where the format
     supports them; names in ``require`` (``"normal"``, ``"color"``,
     ``"quality"``) must be stored, or ``PointCloudError`` says the format
-    cannot hold them and nothing is written.
+    cannot hold them and nothing is written.  ``ramp`` colours the vertices
+    from their quality in [0, 1] with MeshLab's quality ramp.
     """
     import os
     import tempfile
@@ -171,6 +173,9 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = ()) -> Non
         raise PointCloudError(f"cannot write {path!r}: the file name needs an extension (.ply, .obj, …)")
     ms = pymeshlab.MeshSet()
     ms.add_mesh(cloud_to_mesh(cloud), cloud.label or "cloud")
+    if ramp and cloud.quality is not None:
+        ms.compute_color_from_scalar_per_vertex(minval=0.0, maxval=1.0)
+        cloud = cloud.with_(colors=np.zeros((len(cloud), 4)))  # colours are now saved
     fd, tmp = tempfile.mkstemp(prefix=".pcprep-", suffix=ext, dir=folder)
     os.close(fd)
     try:

@@ -228,3 +228,11 @@ def test_edge_correction_moves_edge_points_within_rho(noisy_cube):
     assert moved.sum() == on.n_corrected
     assert step.max() < 0.7 * on.h  # |d| < ρh (4.19)
     assert np.median(near[moved]) < 2.0
+
+
+def test_normals_consistently_oriented_without_hint():
+    s = make_shape("sphere", n=3000, seed=2)
+    noisy = add_noise(s.points, s.normals, sigma=0.2, h=s.h, kind="normal", seed=3)
+    r = denoise_l1_tv(noisy, n_iter=2)
+    side = np.sign(np.einsum("ij,ij->i", r.normals, r.points))
+    assert abs(side.sum()) == len(side)  # all outward or all inward
