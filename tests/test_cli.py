@@ -106,11 +106,12 @@ def test_console_entry_point_runs_as_a_module(cloud_file):
     assert "points: 800" in proc.stdout
 
 
-def test_scalar_command_writes_quality_and_colour_ramp(specs, cloud_file, tmp_path):
+def test_scalar_command_writes_quality_and_colour_ramp(specs, tmp_path):
+    src = sphere_points(500)
+    save_cloud(Cloud(src), str(tmp_path / "unit.ply"))
     out = tmp_path / "s.ply"
-    assert main(["_test_scalar", str(cloud_file), str(out), "--quiet"]) == 0
+    assert main(["_test_scalar", str(tmp_path / "unit.ply"), str(out), "--quiet"]) == 0
     got = load_cloud(str(out))
-    src = load_cloud(str(cloud_file)).points
     hi, lo = np.argmax(src[:, 2]), np.argmin(src[:, 2])
     assert got.quality[hi] > got.quality[lo]
     assert not np.allclose(got.colors[hi], got.colors[lo])
