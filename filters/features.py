@@ -30,6 +30,10 @@ log = logging.getLogger("pcprep")
 _MAD_FLOOR = 0.3
 #: points per chunk in the multi-scale moment computation
 _CHUNK = CHUNK // 4
+#: neighbours used to estimate the crease line around a detected point
+_LOC_K = 16
+#: smallest scales whose projected distance enters the ridge strength
+_LOC_SCALES = 5
 
 
 # ---------------------------------------------------------------------------
@@ -218,6 +222,59 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     return float(cuts[int(np.argmax(between))])
 
 
+def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
+                    h: float, k: int = 16, tree=None) -> np.ndarray:
+    """Distance of each selected point to the crease line through its
+    neighbourhood, in units of h.
+
+    For a point i with ``mask[i]``, its ``k`` nearest neighbours j are weighted
+    by ``w_j = ridge_j²`` (the ridge strength peaks on the crease and fades
+    over a few h across it).  Their weighted centroid c_i lies on the crease
+    and the principal axis t_i of their weighted scatter runs along it (the
+    weight concentrates on a line of ridge points); the distance is the
+    component of ``p_i − c_i`` orthogonal to t_i.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Centred cloud.
+    mask : (n,) bool
+        Points whose distance is wanted.
+    ridge : (n,) float, ≥ 0
+        Ridge strength of every point.
+    h : float
+        Average spacing (the unit of the result).
+    k : int
+        Neighbourhood size (self included).
+
+    Returns
+    -------
+    dist : (n,) float
+        Crease distance / h for ``mask`` points, ``inf`` elsewhere.
+    """
+    out = np.full(len(points), np.inf)
+    sel = np.flatnonzero(mask)
+    tree = build_tree(points) if tree is None else tree
+    k = min(k, len(points))
+    w_all = ridge * ridge
+    eye = np.eye(3)
+    for s in range(0, len(sel), _CHUNK):
+        rows = sel[s:s + _CHUNK]
+        _, idx = knn(points, k, tree=tree, query=points[rows])
+        w = w_all[idx]
+        tot = w.sum(axis=1, keepdims=True)
+        w = np.where(tot > 0, w / np.where(tot > 0, tot, 1.0), 1.0 / k)
+        x = points[idx] - points[rows, None, :]                 # (c, k, 3)
+        mu = np.einsum("ck,ckd->cd", w, x)                      # c_i − p_i
+        cov = np.einsum("ck,cki,ckj->cij", w, x, x) - mu[:, :, None] * mu[:, None, :]
+        # principal axis = eigenvector of the smallest eigenvalue of tr·I − cov
+        tr = np.trace(cov, axis1=1, axis2=2)
+        _, t = sym3_eig(tr[:, None, None] * eye - cov)
+        off = mu - np.einsum("cd,cd->c", mu, t)[:, None] * t
+        out[rows] = np.sqrt(np.einsum("cd,cd->c", off, off)) / h
+    return out
+
+
 # ---------------------------------------------------------------------------
 # public detectors
 # ---------------------------------------------------------------------------
@@ -231,7 +288,8 @@ class DetectionResult:
     mask : (n,) bool
         Detected points.
     score : (n,) float
-        Per-point code-length score (higher = rarer); ``mask = score > threshold``.
+        Per-point code-length score (higher = rarer); ``mask = score > threshold``
+        (for sharp features further restricted by ``crease_distance``).
     threshold : float
         The threshold T applied to ``score``.
     quality : (n,) float
@@ -248,6 +306,11 @@ class DetectionResult:
         Average spacing (mean distance to the 6 nearest neighbours).
     beta : float or None
         β of (7.10) when given; None when the threshold came from Otsu.
+    crease_distance : (n,) float or None
+        Sharp features with the localisation step: each point's distance to
+        its estimated crease line in h (``inf`` for points not above the
+        threshold); then ``mask = (score > threshold) & (crease_distance ≤
+        crease_width)``.  None when the step is off and for hole boundaries.
     """
 
     mask: np.ndarray
@@ -260,6 +323,7 @@ class DetectionResult:
     dictionary: np.ndarray
     h: float
     beta: float | None
+    crease_distance: np.ndarray | None = None
 
 
 def _common_params(k_min: int, k_max: int, tol: float, score: str,
@@ -301,7 +365,11 @@ def _common_params(k_min: int, k_max: int, tol: float, score: str,
 
 
 #: parameters of ``detect_sharp_features``
-PARAMS_SHARP = _common_params(8, 40, 0.1, "l1")
+PARAMS_SHARP = _common_params(8, 40, 0.1, "l1", (
+    Param("crease_width", float, 0.7, "Localisation step: a detected point is kept only "
+          "if it lies within this distance of the crease line estimated from its "
+          "detected neighbourhood (see Notes).  Empty = off (the thesis' rule (7.11) "
+          "alone).", low=0.0, high=100.0, closed="right", unit="h", optional=True),))
 #: parameters of ``detect_hole_boundaries``
 PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
     Param("min_shift", float, 0.2, "Geometric gate: a detected point must also have a "
@@ -393,16 +461,27 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     else:
         T = float(beta * score.max())      # (7.10)
     mask = score > T                       # (7.11)
+    cdist = None
     if kind == "hole" and p["min_shift"] > 0:
         mask &= F[:, -1] >= p["min_shift"]  # largest-scale tangential shift / r
+    if kind == "sharp" and p["crease_width"] is not None and mask.any():
+        n_loc = min(_LOC_SCALES, len(ks))
+        ridge = score * F[:, 3:4 * n_loc:4].mean(axis=1)  # code length × Pd (in h)
+        cdist = crease_distance(pts, mask, ridge, h=h, k=_LOC_K, tree=tree)
+        n_det = int(mask.sum())
+        mask &= cdist <= p["crease_width"]
+        log.info("%s: localisation keeps %d of %d detected points", func,
+                 int(mask.sum()), n_det)
     log.info("%s: threshold %.4g selects %d of %d points", func, T, int(mask.sum()),
              len(pts))
     return DetectionResult(mask=mask, score=score, threshold=float(T),
                            quality=mask.astype(np.float64), nnz=nnz, residual=resid,
-                           scales=ks, dictionary=D, h=float(h), beta=beta)
+                           scales=ks, dictionary=D, h=float(h), beta=beta,
+                           crease_distance=cdist)
 
 
-def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: int = 8,
+def detect_sharp_features(points, normals=None, *, crease_width: float | None = 0.7,
+                          n_scales: int = 10, k_min: int = 8,
                           k_max: int = 40, n_atoms: int = 100, coder: str = "omp",
                           alpha: float = 0.01, tol: float = 0.1, score: str = "l1",
                           beta: float | None = None, max_iter: int = 10,
@@ -509,7 +588,7 @@ def detect_sharp_features(points, normals=None, *, n_scales: int = 10, k_min: in
     True
     """
     p = resolve_params(PARAMS_SHARP, dict(
-        n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        crease_width=crease_width, n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
         max_train=max_train, seed=seed), "detect_sharp_features")
     return _detect(points, normals, p, "detect_sharp_features", "sharp")
