@@ -9,6 +9,15 @@ neighbourhood sizes from ONE sorted k-NN query (prefix sums over the sorted
 neighbours), concatenated (§7.3.5); columns standardised; a K-SVD dictionary
 of ``n_atoms`` atoms (§7.3.2, Alg. 3.3); every point coded on it; a per-point
 code-length score; a threshold (Otsu by default, or β·max as in (7.10)).
+
+A final localisation step (not in the thesis; on by default, off with
+``crease_width=None`` / ``rim_width=None``) narrows the detected band: the
+code length marks every point whose multi-scale neighbourhood sees the
+feature, a band as wide as the largest neighbourhood, while a feature is a
+line.  Sharp points are kept within ``crease_width`` h of the crease line
+estimated from their neighbourhood (``crease_distance``); rim points within
+``rim_width`` h of the border implied by their centroid shifts
+(``border_distance``).
 """
 
 from __future__ import annotations
@@ -17,6 +26,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from . import sparse
 from ._params import Param, resolve_params
@@ -32,8 +42,8 @@ _MAD_FLOOR = 0.3
 _CHUNK = CHUNK // 4
 #: neighbours used to estimate the crease line around a detected point
 _LOC_K = 16
-#: smallest scales whose projected distance enters the ridge strength
-_LOC_SCALES = 5
+#: quantile at which the sharp score is winsorised before Otsu's threshold
+_WINSOR_Q = 0.95
 
 
 # ---------------------------------------------------------------------------
@@ -275,6 +285,42 @@ def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
     return out
 
 
+def _half_disc_table(m: int = 2001) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid shift g(u)/r of a disc of radius r whose part beyond a line at
+    distance u·r from the centre is missing (u ∈ [0, 1]; g(0) = 4/(3π))."""
+    u = np.linspace(0.0, 1.0, m)
+    root = np.sqrt(1.0 - u * u)
+    g = (2.0 / 3.0) * root ** 3 / (np.pi - np.arccos(u) + u * root)
+    return u, g
+
+
+def border_distance(shift: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Distance to a straight border implied by tangential centroid shifts.
+
+    A k-NN neighbourhood of a point at distance d < r from a straight border
+    is a disc of radius r with the segment beyond the border missing; its
+    centroid is shifted away from the border by ``r·g(d/r)`` (g decreasing
+    from 4/(3π) ≈ 0.42 at d = 0 to 0 at d = r).  Inverting g per scale gives
+    d; the median over the scales is returned.
+
+    Parameters
+    ----------
+    shift : (n, s) float
+        Tangential centroid shift / r at each scale.
+    radius : (n, s) float
+        Radius of each scale's neighbourhood (any unit; the result has it).
+
+    Returns
+    -------
+    (n,) float
+        Median over the scales of ``r·g⁻¹(shift)`` (shifts above 0.42 give 0,
+        shifts of 0 give r).
+    """
+    u, g = _half_disc_table()
+    d = np.interp(shift, g[::-1], u[::-1]) * radius
+    return np.median(d, axis=1)
+
+
 # ---------------------------------------------------------------------------
 # public detectors
 # ---------------------------------------------------------------------------
@@ -324,6 +370,7 @@ class DetectionResult:
     h: float
     beta: float | None
     crease_distance: np.ndarray | None = None
+    border_distance: np.ndarray | None = None
 
 
 def _common_params(k_min: int, k_max: int, tol: float, score: str,
@@ -376,7 +423,11 @@ PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
           "tangential centroid shift of at least this fraction of the radius of its "
           "largest neighbourhood (an exact half-disc gives 0.42; 0 disables the gate "
           "and leaves the pure code-rarity rule).", low=0.0, high=1.0,
-          unit="fraction"),))
+          unit="fraction"),
+    Param("rim_width", float, 1.5, "Localisation step: a detected point is kept only "
+          "if its distance to the border, estimated from its centroid shifts (see "
+          "Notes), is at most this.  Empty = off.", low=0.0, high=100.0,
+          closed="right", unit="h", optional=True)))
 #: alias used by the bridge convention (one ``PARAMS`` per module)
 PARAMS = PARAMS_SHARP
 
@@ -411,6 +462,11 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     ks = scale_sizes(p["k_min"], p["k_max"], p["n_scales"])
     F, h = _multiscale(pts, ks, kind, None, tree)
     log.info("%s: n=%d h=%.4g scales=%s", func, len(pts), h, ks.tolist())
+    bdist = None
+    if kind == "hole" and p["rim_width"] is not None:
+        # radius of each scale in h from the density column k h²/(π r²)
+        r_h = np.sqrt(ks[None, :] / (np.pi * np.maximum(F[:, 1::3], 1e-300)))
+        bdist = border_distance(F[:, 2::3], r_h)
     if kind == "hole":
         # orient so that larger = more boundary-like (thesis §7.3.1: epv and
         # density drop at a border, the centroid shift grows)
@@ -433,7 +489,13 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
                       max_train=len(train), seed=p["seed"])
     D = res.dictionary
     if p["coder"] == "omp":
-        codes = sparse.omp(Z, D, tol=p["tol"] * d)
+        # signals already within the residual target need no atom (most flat
+        # points: the one-sided standardisation maps them near 0); only the
+        # others are pursued -- the same codes, without their correlations
+        busy = np.flatnonzero(np.einsum("ij,ij->i", Z, Z) > p["tol"] * d)
+        part = sparse.omp(Z[busy], D, tol=p["tol"] * d).tocoo()
+        codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
+                              shape=(len(Z), D.shape[0]))
     else:
         codes = sparse.lasso_lars(Z, D, alpha=p["alpha"])
     nnz, resid = sparse.code_length(codes, Z, D)
@@ -447,10 +509,10 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     beta = p["beta"]
     if beta is None:
         if kind == "sharp":
-            # Otsu on the score winsorised at its 98th percentile: the few
+            # Otsu on the score winsorised at its 95th percentile: the few
             # extreme scores (corners, tips) would otherwise form Otsu's upper
             # class alone
-            T = otsu_threshold(np.minimum(score, np.quantile(score, 0.98)))
+            T = otsu_threshold(np.minimum(score, np.quantile(score, _WINSOR_Q)))
         else:
             T = otsu_threshold(score)
         if kind == "hole" and (score > T).sum() > 1:
@@ -464,9 +526,13 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     cdist = None
     if kind == "hole" and p["min_shift"] > 0:
         mask &= F[:, -1] >= p["min_shift"]  # largest-scale tangential shift / r
+    if bdist is not None:
+        n_det = int(mask.sum())
+        mask &= bdist <= p["rim_width"]
+        log.info("%s: localisation keeps %d of %d detected points", func,
+                 int(mask.sum()), n_det)
     if kind == "sharp" and p["crease_width"] is not None and mask.any():
-        n_loc = min(_LOC_SCALES, len(ks))
-        ridge = score * F[:, 3:4 * n_loc:4].mean(axis=1)  # code length × Pd (in h)
+        ridge = score * F[:, 3::4].mean(axis=1)   # code length × mean Pd (in h)
         cdist = crease_distance(pts, mask, ridge, h=h, k=_LOC_K, tree=tree)
         n_det = int(mask.sum())
         mask &= cdist <= p["crease_width"]
@@ -477,7 +543,7 @@ def _detect(points, normals, p: dict, func: str, kind: str) -> DetectionResult:
     return DetectionResult(mask=mask, score=score, threshold=float(T),
                            quality=mask.astype(np.float64), nnz=nnz, residual=resid,
                            scales=ks, dictionary=D, h=float(h), beta=beta,
-                           crease_distance=cdist)
+                           crease_distance=cdist, border_distance=bdist)
 
 
 def detect_sharp_features(points, normals=None, *, crease_width: float | None = 0.7,
@@ -497,6 +563,10 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
     normals : (n, 3) float, optional
         Accepted for the filter interface and validated, but not used: the
         normal of (7.4) is the PCA normal of each scale's neighbourhood.
+    crease_width : float or None, default=0.7
+        Localisation step (see Notes): keep a point above the threshold only
+        if it lies within this many h of its estimated crease line.  None:
+        off, ``mask = score > T`` as in (7.11).
     n_scales : int, default=10
         Neighbourhood sizes, geometrically spaced from ``k_min`` to ``k_max``.
     k_min, k_max : int, default=8, 40
@@ -523,7 +593,8 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
     Returns
     -------
     DetectionResult
-        ``mask`` = f > T (7.11), ``score`` = f.
+        ``mask`` = (f > T) (7.11) and, with the localisation step,
+        ``crease_distance ≤ crease_width``; ``score`` = f.
 
     Raises
     ------
@@ -570,9 +641,33 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
       it is several times slower and, measured on the synthetic cube, ranks
       points worse than the OMP count.
     * Threshold: Otsu by default, as the thesis suggests after Tran et al.
-      2014 (§7.4.1), computed on the score winsorised at its 98th percentile
+      2014 (§7.4.1), computed on the score winsorised at its 95th percentile
       (the few extreme scores of corners and tips would otherwise form the
-      upper class alone); ``beta`` restores (7.10), T = β·max f.
+      upper class alone; 0.95 rather than 0.98 since the localisation step
+      below removes the extra band points a lower threshold admits: mean F1
+      over 3 synthetic and 4 mesh-vertex CAD models at 0 and 0.3h noise 0.759
+      at 0.98, 0.767 at 0.95); ``beta`` restores (7.10), T = β·max f.
+    * Localisation (``crease_width``, not in the thesis): the code length
+      marks every point whose largest neighbourhood (k_max = 40, a radius of
+      about 3.5h) reaches the edge, a band several h wide, while the feature is
+      a line -- on the benchmark the rule alone had recall 0.95 and
+      precision 0.35-0.75.  Each detected point gets a crease estimate from
+      its 16 nearest neighbours weighted by the squared ridge strength
+      ``score × mean_s Pd_s`` (code length times the projected distance
+      averaged over the scales; it peaks on the crease and fades across it):
+      their weighted centroid is a point of the crease and the principal axis
+      of their weighted scatter its direction.  The point is kept when its
+      distance to that line is at most ``crease_width`` h
+      (``crease_distance``).  Measured on the cases above: mean F1 0.63 →
+      0.77 (random-sampled synthetic parts 0.72 → 0.77, mesh-vertex models
+      0.56 → 0.77, at 0.3h noise 0.60 → 0.69).  Alternatives measured and
+      dropped: non-maximum suppression of the score or of the small-scale
+      Pd among the 8-16 nearest neighbours (mesh models +0.17 but synthetic
+      −0.03: it keeps one row, while the synthetic truth band is 2h wide);
+      two mean-shift iterations of the crease point (no gain); exempting
+      corners (non-linear weighted scatter) from the step (−0.01); Otsu on
+      log or square-root scores (worse).  ``crease_width=None`` restores the
+      plain rule (7.11).
 
     References
     ----------
@@ -595,6 +690,7 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
 
 
 def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
+                           rim_width: float | None = 1.5,
                            n_scales: int = 10, k_min: int = 16,
                            k_max: int = 80, n_atoms: int = 100, coder: str = "omp",
                            alpha: float = 0.01, tol: float = 0.3, score: str = "l1",
@@ -613,6 +709,9 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
         Geometric gate (see Notes): a detected point must have a tangential
         centroid shift of at least ``min_shift`` times its largest scale's
         radius.  0 disables it.
+    rim_width : float or None, default=1.5
+        Localisation step (see Notes): keep a detected point only if its
+        estimated distance to the border is at most this many h.  None: off.
     n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
         As in ``detect_sharp_features`` (defaults k_min=16, k_max=80, tol=0.3).
     score : {"l1", "count"}, default="l1"
@@ -669,9 +768,22 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
       0.70 → 0.86, cube 0.58 → 0.76) without changing it on open scans.
     * Larger scales than for edges (16-80 points): the border signal is a
       first-order moment, noisy at small k.
+    * Localisation ``rim_width`` (not in the thesis): the detected band is as
+      wide as the largest neighbourhood.  A k-NN neighbourhood at distance d
+      from a straight border is a disc of radius r missing the segment beyond
+      the border; its centroid shift is r·g(d/r) with g known in closed form
+      (4/(3π) at d = 0, 0 at d = r).  Inverting g at every scale and taking
+      the median gives a border distance in h (``border_distance``); points
+      beyond ``rim_width`` are dropped.  Measured on the 9 benchmark cases:
+      mean F1 0.707 → 0.737 (holed synthetic parts 0.77 → 0.81, the real
+      bunny with its own bottom holes 0.43 → 0.56); alternatives measured:
+      angle-gap gating of the candidates (0.737 at 1.2 rad, k = 50, but it
+      makes the detector depend on the baseline), the mean shift over the
+      scales ≥ 0.2 (0.741, no geometric meaning for the threshold), a single
+      Otsu (0.744, but 0.80 instead of 0.81 on the synthetic parts).
     """
     p = resolve_params(PARAMS_HOLES, dict(
-        min_shift=min_shift, n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        min_shift=min_shift, rim_width=rim_width, n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
         max_train=max_train, seed=seed), "detect_hole_boundaries")
     return _detect(points, normals, p, "detect_hole_boundaries", "hole")

@@ -377,7 +377,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
 
     P = P - P.mean(axis=0)
     tree = build_tree(P)
-    F, h, fdist, _ = sdbs_features(P, N, p["k"], p["feature_scale"], tree=tree)
+    F, h, fdist = sdbs_features(P, N, p["k"], p["feature_scale"], tree=tree)[:3]
     # length unit of the radius: h^(1-β) h_i^β with h_i the local spacing
     # (mean distance to the 6 nearest neighbours) and β = density_adapt
     local = np.maximum(fdist[:, 1:7].mean(axis=1), 1e-3 * h)
@@ -387,6 +387,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     score, nnz, res = saliency_scores(F, n_atoms=p["n_atoms"], alpha=p["alpha"],
                                       max_iter=p["max_iter"], max_train=p["max_train"],
                                       seed=p["seed"])
+    del F
     inv = 1.0 / np.maximum(score, p["sf_floor"])
     d0 = p["delta"] if target is None else _delta_guess(target, n, inv)
     kg = _graph_k(d0 * inv, n)

@@ -18,9 +18,13 @@ register(FilterSpec(
         "and §7.3.5: weighted-PCA features (λ0, λ0/λ2, surface variation, projected "
         "distance) at 10 neighbourhood sizes from one sorted k-NN query, standardised and "
         "concatenated; a K-SVD dictionary of S = 100 atoms; each point's code length "
-        "(number of atoms it needs) thresholded automatically by Otsu's method, or at "
-        "β·max (7.10).  Detected points become the vertex selection and vertex quality 1 "
-        "(others 0); the code-length score is kept as the per-vertex attribute 'score'."
+        "(ℓ1 size of its code plus residual; the atom count of (7.8) with score='count') "
+        "thresholded automatically by Otsu's method, or at β·max (7.10); then a "
+        "localisation step (not in the thesis; crease_width, empty = off) keeps the points "
+        "within crease_width·h of the crease line estimated from their neighbourhood, "
+        "narrowing the detected band to the edge.  Detected points become the vertex "
+        "selection and vertex quality 1 (others 0); the code-length score is kept as the "
+        "per-vertex attribute 'score'."
     ),
     func=_m.detect_sharp_features,
     params=_m.PARAMS_SHARP,
@@ -41,9 +45,12 @@ register(FilterSpec(
         "§7.3.4: border features (|λ2 − 2λ1|/λ2, local density k/(πr²), tangential "
         "centroid shift) at 10 neighbourhood sizes, oriented and robustly standardised; "
         "K-SVD with S = 100 atoms; rarity = ℓ1 size of each point's code, thresholded by "
-        "Otsu (applied twice, rims being rare) or at β·max.  The printed rule (7.12)-"
-        "(7.13), f < β·min f, selects nothing; see the filter's documentation.  Detected "
-        "points become the vertex selection and vertex quality 1 (others 0)."
+        "Otsu (applied twice, rims being rare) or at β·max; a geometric gate (min_shift) "
+        "and a localisation step (not in the thesis; rim_width, empty = off) keeping the "
+        "points whose border distance, from the half-disc centroid-shift law, is at most "
+        "rim_width·h.  The printed rule (7.12)-(7.13), f < β·min f, selects nothing; see "
+        "the filter's documentation.  Detected points become the vertex selection and "
+        "vertex quality 1 (others 0)."
     ),
     func=_m.detect_hole_boundaries,
     params=_m.PARAMS_HOLES,
