@@ -21,8 +21,10 @@ import numpy as np
 log = logging.getLogger("pcprep")
 
 #: figure size in inches at DPI; keeps each PNG well under 150 KB
-PANEL_IN = 3.0
-DPI = 100
+PANEL_IN = 2.6
+DPI = 90
+#: at most this many points are drawn per panel (a seeded, fixed subset)
+MAX_DRAWN = 3500
 
 
 def _plt():
@@ -36,7 +38,7 @@ def _plt():
 
 def _view(ax, pts, elev=28.0, azim=-58.0):
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+    c, r = 0.5 * (lo + hi), 0.36 * float(np.max(hi - lo))  # zoomed: axes are hidden
     ax.set_xlim(c[0] - r, c[0] + r)
     ax.set_ylim(c[1] - r, c[1] + r)
     ax.set_zlim(c[2] - r, c[2] + r)
@@ -64,6 +66,10 @@ def panels(path: Path, items: list[tuple], *, cmap="viridis", vmin=None, vmax=No
     sc = None
     for i, it in enumerate(items):
         title, pts, vals = it[0], it[1], it[2]
+        if (len(it) < 4 or it[3] is None) and len(pts) > MAX_DRAWN:
+            sub = np.random.default_rng(0).choice(len(pts), MAX_DRAWN, replace=False)
+            pts = pts[sub]
+            vals = None if vals is None else np.asarray(vals)[sub]
         ax = fig.add_subplot(1, n, i + 1, projection="3d")
         if len(it) > 3 and it[3] is not None:
             from mpl_toolkits.mplot3d.art3d import Poly3DCollection

@@ -108,11 +108,12 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
     md = ["# pcprep comparison report", ""]
     mode = "quick" if quick else "full"
     if assemble_only:
-        md.append("Assembled from the per-harness reports in this folder (each states its own "
-                  "settings); pictures rendered now.")
-    md.append(f"Mode: **{mode}**, seed {seed}, total time "
-              f"{total / 60:.1f} min. Rerunning with the same mode and seed reproduces every "
-              "quality number; times and memory vary with machine load.")
+        md.append("Assembled from the per-harness reports in this folder; each states its own "
+                  f"mode and settings. Pictures rendered now (seed {seed}).")
+    else:
+        md.append(f"Mode: **{mode}**, seed {seed}, total time {total / 60:.1f} min.")
+    md.append("Rerunning with the same mode and seed reproduces every quality number; times "
+              "and memory vary with machine load.")
     md.append("")
     md.append("## Machine and library versions")
     md.append("")
