@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
@@ -199,59 +199,88 @@ def pca_normals(points: np.ndarray, k: int = 16, *, tree: cKDTree | None = None,
 
 
 def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
-                       tree: cKDTree | None = None) -> np.ndarray:
+                       tree: cKDTree | None = None, neighbors: np.ndarray | None = None
+                       ) -> np.ndarray:
     """Consistently orient ``normals`` by propagation along a minimum spanning
     tree of the k-NN graph with edge cost 1 − |n_i·n_j| (Hoppe et al. 1992).
 
-    Each connected component is rooted at its point of largest z, whose normal
-    is made to point toward +z (outward on a closed surface).  The sign
-    propagation runs by pointer jumping, O(n log depth), without a Python loop
-    over points.  Returns a new array.
+    Parameters
+    ----------
+    points : (n, 3) float
+    normals : (n, 3) float
+        Unit normals of unknown sign.
+    k : int
+        Neighbours per point in the graph.
+    tree : cKDTree, optional
+        A tree over ``points`` (used only when ``neighbors`` is not given).
+    neighbors : (n, m) int, optional
+        A neighbour array a filter already holds, self EXCLUDED; its first
+        ``k`` columns are used and no new query is made.
+
+    Returns
+    -------
+    (n, 3) float
+        A new array.  Each connected component is rooted at its point of
+        largest z, whose normal is made to point toward +z (outward on a closed
+        surface).  Edge costs are float32 and each undirected edge is stored
+        once, so the graph stays small at 10⁶ points; the sign propagation runs
+        by pointer jumping, O(n log depth), without a Python loop over points.
     """
     n = len(points)
     normals = np.array(normals, dtype=np.float64, copy=True)
     if n < 2:
         return normals
-    k = min(k, n - 1)
-    _, idx = knn(points, k, tree=tree, include_self=False)
-    rows = np.repeat(np.arange(n), k)
-    cols = idx.ravel()
-    dots = np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols]))
-    cost = 1.0 - dots + 1e-9  # strictly positive so every edge is stored
-    graph = coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
-    graph = graph.maximum(graph.T)
+    if neighbors is None:
+        _, neighbors = knn(points, min(k, n - 1), tree=tree, include_self=False)
+    nb = neighbors[:, :k]
+    m = nb.shape[1]
+    if m == 0:
+        return normals
+    # each undirected edge once: (i, j) is kept when i < j, or when i is not among
+    # j's own neighbours (mutual k-NN pairs would otherwise appear twice)
+    keep = np.zeros((n, m), dtype=bool)
+    cost = np.zeros((n, m), dtype=np.float32)
+    rows = np.arange(n, dtype=nb.dtype)
+    for s in range(0, n, CHUNK):
+        e = min(n, s + CHUNK)
+        j = nb[s:e]
+        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[j]))
+        cost[s:e] = 1.0 - dots + 1e-6  # strictly positive so every edge is stored
+        mutual = (nb[j] == rows[s:e, None, None]).any(axis=2)
+        keep[s:e] = (rows[s:e, None] < j) | ~mutual
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    graph = csr_matrix((cost[keep].astype(np.float64), nb[keep], indptr), shape=(n, n))
+    del cost, keep
     mst = minimum_spanning_tree(graph)
-    mst = mst + mst.T
-    ncomp, labels = connected_components(mst, directed=False)
-    parent = np.full(n, -1, dtype=np.int64)
+    del graph
+    _, labels = connected_components(mst, directed=False)
     # root each component at its highest point
     order = np.lexsort((-points[:, 2], labels))
     first = np.ones(n, dtype=bool)
     first[1:] = labels[order[1:]] != labels[order[:-1]]
     roots = order[first]
+    parent = np.full(n, -1, dtype=np.int64)
     for r in roots:  # one BFS per connected component (not per point)
         _, pred = breadth_first_order(mst, int(r), directed=False, return_predecessors=True)
         comp = pred >= 0
         parent[comp] = pred[comp]
     parent[roots] = roots
     # rel[i]: sign of node i relative to its parent; the final sign of i is the
-    # product of rel along its path to the root (times the root's own sign).
+    # product of rel along its path to the root, times the root's own sign
     is_root = np.zeros(n, dtype=bool)
     is_root[roots] = True
-    rel = np.sign(np.einsum("ij,ij->i", normals, normals[parent]))
-    rel[rel == 0] = 1.0
+    rel = np.where(np.einsum("ij,ij->i", normals, normals[parent]) < 0, -1.0, 1.0)
     rel[is_root] = 1.0
-    root_sign = np.where(normals[:, 2] < 0, -1.0, 1.0)
-    acc = rel.copy()   # product of rel over the path segment [i, ptr[i])
-    ptr = parent.copy()
+    acc, ptr = rel.copy(), parent.copy()  # acc: product of rel over [i, ptr[i])
     live = ~is_root[ptr]
     while live.any():  # pointer jumping: O(log depth) vectorised passes
         nxt = ptr[live]
         acc[live] = acc[live] * acc[nxt]
         ptr[live] = ptr[nxt]
         live = ~is_root[ptr]
-    sign = acc * root_sign[ptr]
-    return normals * sign[:, None]
+    root_sign = np.where(normals[:, 2] < 0, -1.0, 1.0)
+    return normals * (acc * root_sign[ptr])[:, None]
 
 
 def orient_normals_toward(points: np.ndarray, normals: np.ndarray, viewpoint) -> np.ndarray:

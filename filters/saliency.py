@@ -34,11 +34,7 @@ import numpy as np
 from ._params import Param, resolve_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import (breadth_first_order, connected_components,
-                                  minimum_spanning_tree)
-
-from .neighbors import SPACING_K, build_tree, centered
+from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
 
 log = logging.getLogger("pcprep")
 
@@ -211,60 +207,10 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
 def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
                         k: int = 16) -> np.ndarray:
     """MST sign propagation (Hoppe et al. 1992) on the ``k`` nearest neighbours
-    already held in ``hood`` (no new k-NN query, int32 graph): the same algorithm
-    and sign convention as :func:`filters.neighbors.orient_normals_mst` (each
-    connected component rooted at its highest point, normal toward +z), with
-    about half its peak memory at 1M points."""
-    n = len(points)
+    already held in ``hood``: :func:`filters.neighbors.orient_normals_mst` with
+    no new k-NN query."""
     kk = min(k + 1, hood.idx.shape[1])
-    nb = hood.idx[:, 1:kk]
-    m = nb.shape[1]
-    if m == 0:
-        return normals.copy()
-    # each undirected edge once: (i, j) is kept when i < j, or when i is not
-    # among j's own neighbours (mutual k-NN pairs would otherwise appear twice)
-    keep = np.zeros((n, m), dtype=bool)
-    cost = np.zeros((n, m), dtype=np.float32)
-    rows = np.arange(n, dtype=np.int32)
-    for s in range(0, n, CHUNK):
-        e = min(n, s + CHUNK)
-        j = nb[s:e]
-        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[j]))
-        cost[s:e] = 1.0 - dots + 1e-6  # strictly positive so every edge is stored
-        mutual = (nb[j] == rows[s:e, None, None]).any(axis=2)
-        keep[s:e] = (rows[s:e, None] < j) | ~mutual
-    cnt = keep.sum(axis=1)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(cnt, out=indptr[1:])
-    graph = csr_matrix((cost[keep].astype(np.float64), nb[keep], indptr), shape=(n, n))
-    del cost, keep
-    mst = minimum_spanning_tree(graph)
-    del graph
-    _, labels = connected_components(mst, directed=False)
-    parent = np.full(n, -1, dtype=np.int64)
-    order = np.lexsort((-points[:, 2], labels))
-    first = np.ones(n, dtype=bool)
-    first[1:] = labels[order[1:]] != labels[order[:-1]]
-    roots = order[first]
-    for r in roots:  # one BFS per connected component (not per point)
-        _, pred = breadth_first_order(mst, int(r), directed=False,
-                                      return_predecessors=True)
-        comp = pred >= 0
-        parent[comp] = pred[comp]
-    parent[roots] = roots
-    is_root = np.zeros(n, dtype=bool)
-    is_root[roots] = True
-    rel = np.sign(np.einsum("ij,ij->i", normals, normals[parent]))
-    rel[(rel == 0) | is_root] = 1.0
-    root_sign = np.where(normals[:, 2] < 0, -1.0, 1.0)
-    acc, ptr = rel.copy(), parent.copy()
-    live = ~is_root[ptr]
-    while live.any():  # pointer jumping: O(log depth) vectorised passes
-        nxt = ptr[live]
-        acc[live] = acc[live] * acc[nxt]
-        ptr[live] = ptr[nxt]
-        live = ~is_root[ptr]
-    return normals * (acc * root_sign[ptr])[:, None]
+    return orient_normals_mst(points, normals, k=kk - 1, neighbors=hood.idx[:, 1:kk])
 
 
 def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
