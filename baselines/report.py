@@ -52,6 +52,13 @@ def _run_step(family: str, speed: bool, quick: bool, seed: int, out_dir: str) ->
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
+def _report_file(out: Path, name: str, quick: bool) -> Path:
+    """The Markdown a harness wrote: some name their quick runs ``<name>_quick``."""
+    if quick and (out / f"{name}_quick.md").exists():
+        return out / f"{name}_quick.md"
+    return out / f"{name}.md"
+
+
 def _demote(md: str, levels: int = 1) -> str:
     """Push every Markdown heading down ``levels`` levels."""
     return re.sub(r"^(#{1,5}) ", lambda m: "#" * (len(m.group(1)) + levels) + " ", md,
@@ -96,7 +103,7 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
         for speed in (False, True):
             if assemble_only:
                 name = f"speed_{family}" if speed else family
-                there = (out / f"{name}.md").exists()
+                there = _report_file(out, name, quick).exists()
                 steps.append({"name": name, "status": "ok" if there else "failed",
                               "error": None if there else "no report in this folder (not run)",
                               "seconds": 0.0})
@@ -126,7 +133,8 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
     md.append("|---|---|---|")
     for s in steps:
         status = s["status"] if s["status"] == "ok" else f"**FAILED**: {s['error']}"
-        link = f"[{s['name']}]({s['name']}.md)" if s["status"] == "ok" else s["name"]
+        link = (f"[{s['name']}]({_report_file(out, s['name'], quick).name})"
+                if s["status"] == "ok" else s["name"])
         md.append(f"| {link} | {status} | {s['seconds']:.1f} |")
     md.append("")
     if figs or fig_failures:
@@ -149,7 +157,7 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
         md.append(f"## {TITLES[family]}")
         md.append("")
         for name in (family, f"speed_{family}"):
-            path = out / f"{name}.md"
+            path = _report_file(out, name, quick)
             step = next(s for s in steps if s["name"] == name)
             if step["status"] != "ok":
                 md.append(f"**{name} FAILED**: {step['error']}")

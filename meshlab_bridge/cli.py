@@ -81,13 +81,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("family", choices=BENCHES)
     bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
     bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
-    bench.add_argument("--out", default="reports", help="output folder (default: reports)")
+    bench.add_argument("--out", default=None,
+                       help="output folder (default: reports, or reports/quick with --quick)")
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--quiet", action="store_true")
     rep = sub.add_parser("report", help="run every harness and write reports/index.md + .html")
     rep.add_argument("--quick", action="store_true",
                      help="generated and pymeshlab-shipped data only; a few minutes")
-    rep.add_argument("--out", default="reports", help="output folder (default: reports)")
+    rep.add_argument("--out", default=None,
+                     help="output folder (default: reports, or reports/quick with --quick)")
     rep.add_argument("--assemble-only", action="store_true",
                      help="do not re-run the harnesses; assemble the index from the reports "
                           "already in the output folder")
@@ -160,16 +162,23 @@ def _cmd_filter(args) -> None:
     log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
 
 
+def _out(args) -> str:
+    """Quick runs go to their own folder so they never overwrite a full run."""
+    if args.out is not None:
+        return args.out
+    return "reports/quick" if args.quick else "reports"
+
+
 def _cmd_bench(args) -> None:
     mod = import_module(f"baselines.bench_{args.family}")
     fn = mod.run_speed if args.speed else mod.run
-    fn(quick=args.quick, seed=args.seed, out_dir=args.out)
+    fn(quick=args.quick, seed=args.seed, out_dir=_out(args))
 
 
 def _cmd_report(args) -> None:
     from baselines import report
 
-    report.build(quick=args.quick, seed=args.seed, out_dir=args.out,
+    report.build(quick=args.quick, seed=args.seed, out_dir=_out(args),
                  assemble_only=args.assemble_only)
 
 
