@@ -835,7 +835,7 @@ def _edge_angles(F, unit):
 
 
 def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
-                drop_unreferenced: bool = True) -> Sample:
+                drop_unreferenced: bool = True, merge_duplicates: bool = True) -> Sample:
     """The vertices of a triangle mesh as a Sample with normals and labels.
 
     Parameters
@@ -850,6 +850,10 @@ def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
     drop_unreferenced : bool, default=True
         Remove vertices used by no face (they have no normal);
         ``extra["vertex_idx"]`` maps the kept vertices to the input.
+    merge_duplicates : bool, default=True
+        Merge vertices at exactly the same position (as MeshLab's
+        ``meshing_remove_duplicate_vertices`` does; pcprep's filters reject
+        duplicate points); faces that collapse are dropped.
 
     Returns
     -------
@@ -871,6 +875,16 @@ def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
             remap = np.full(len(V), -1, dtype=np.int64)
             remap[vidx] = np.arange(len(vidx))
             V, F = V[vidx], remap[F]
+    if merge_duplicates:
+        _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+        if len(first) < len(V):
+            log.info("mesh_sample: merged %d duplicate vertices", len(V) - len(first))
+            order = np.sort(first)  # keep the first occurrence, in input order
+            rank = np.empty(len(first), dtype=np.int64)
+            rank[np.argsort(first)] = np.arange(len(first))
+            F = rank[inverse.ravel()][F]
+            F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+            V, vidx = V[order], vidx[order]
     cr, unit, _ = _face_geometry(V, F)
     vn = np.zeros_like(V)
     for j in range(3):

@@ -146,10 +146,6 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
             md.append("")
             md.append(f"![{title}]({rel.as_posix()})")
             md.append("")
-        extra = sorted((out / "img").glob("saliency_*.png"))
-        for path in extra:
-            md.append(f"![saliency heat map]({path.relative_to(out).as_posix()})")
-            md.append("")
         for fail in fig_failures:
             md.append(f"- picture **FAILED**: {fail}")
         md.append("")

@@ -76,11 +76,14 @@ def as_normals(normals, n: int, *, func: str, name: str = "normals") -> np.ndarr
 
 
 def check_spread(points: np.ndarray, *, func: str, need_surface: bool = True) -> None:
-    """Reject clouds whose points are all coincident, collinear or (optionally)
-    that carry no 2-D extent.  Coplanar clouds are fine for surface filters.
+    """Reject degenerate clouds: all points coincident, all collinear (when
+    ``need_surface``), or holding exact duplicate points.  Coplanar clouds are
+    valid surfaces.
 
     A cloud is collinear when the second largest principal extent is below
-    1e-9 of the largest.
+    1e-9 of the largest.  Duplicates are rejected because they make the
+    spacing h and every k-NN neighbourhood degenerate (zero distances); the
+    message says how many and where, and how to remove them.
     """
     centred = points - points.mean(axis=0)
     # singular values of the centred cloud are the principal extents
@@ -89,6 +92,15 @@ def check_spread(points: np.ndarray, *, func: str, need_surface: bool = True) ->
         raise PointCloudError(f"{func}: all points coincide; no surface to process")
     if need_surface and sv[1] <= 1e-9 * sv[0]:
         raise PointCloudError(f"{func}: all points are collinear; no surface to process")
+    order = np.lexsort(points.T[::-1])
+    same = (points[order[1:]] == points[order[:-1]]).all(axis=1)
+    if same.any():
+        first = int(np.flatnonzero(same)[0])
+        a, b = sorted((int(order[first]), int(order[first + 1])))
+        raise PointCloudError(
+            f"{func}: {int(same.sum())} duplicate point(s) (first: rows {a} and {b}); "
+            "remove duplicates first (MeshLab: meshing_remove_duplicate_vertices)"
+        )
 
 
 def check_param(

@@ -150,3 +150,21 @@ def test_cli_writes_the_documented_output(spec, part, tmp_path):
         assert np.array_equal(got.quality, direct[spec.mask_field].astype(float))
     if spec.kind == "scalar":
         assert np.allclose(got.quality, direct[spec.scalar_field], atol=1e-6)
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=IDS)
+def test_far_from_origin_coordinates_keep_their_precision(spec, part):
+    """A cloud 1e6 away from the origin (UTM-like) gives the same answer as at
+    the origin: filters work on centred coordinates."""
+    offset = np.array([4.5e6, -2.5e6, 1.0e6])
+    near = _outputs(spec, _call(spec, part.points, part.normals))
+    far = _outputs(spec, _call(spec, part.points + offset, part.normals))
+    for key, val in near.items():
+        if spec.kind == "coord" and key == spec.points_field:
+            err = np.linalg.norm(far[key] - offset - val, axis=1)
+            assert np.percentile(err, 99) < 1e-3 * part.h and err.max() < 0.05 * part.h, key
+        elif val.dtype == bool or val.dtype.kind in "iu":
+            assert np.mean(far[key] == val) > 0.97, key
+        else:
+            assert np.allclose(far[key], val, atol=1e-6, rtol=1e-6) or \
+                np.corrcoef(far[key].ravel(), val.ravel())[0, 1] > 0.95, key

@@ -93,3 +93,11 @@ def test_resolve_params_names_the_problem(given, message):
     except InvalidParameterError as exc:
         assert str(exc).startswith("denoise_l1_tv: ")
         assert isinstance(exc, ValueError) and isinstance(exc, TypeError)
+
+
+def test_check_spread_names_duplicate_points():
+    pts = np.random.default_rng(1).random((50, 3))
+    check_spread(pts, func="f")
+    pts[40] = pts[7]
+    with pytest.raises(PointCloudError, match=r"1 duplicate point\(s\) \(first: rows 7 and 40\)"):
+        check_spread(pts, func="f")
