@@ -171,6 +171,8 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
         return
     if not ext:
         raise PointCloudError(f"cannot write {path!r}: the file name needs an extension (.ply, .obj, …)")
+    if ext.lower() == ".e57":
+        _check_float32(cloud, path)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(cloud_to_mesh(cloud), cloud.label or "cloud")
     if ramp and cloud.quality is not None:
@@ -194,6 +196,19 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise PointCloudError(f"cannot write {path!r}: {msg}") from exc
+
+
+def _check_float32(cloud: Cloud, path: str) -> None:
+    """pymeshlab writes E57 coordinates as float32: refuse when that would move
+    points by more than 1e-6 of the cloud's extent (e.g. UTM offsets)."""
+    pts = cloud.points
+    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
+    extent = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    if err > 1e-6 * max(extent, 1e-300):
+        raise PointCloudError(
+            f"cannot write {path!r}: the E57 writer stores float32 coordinates, which would "
+            f"move points by up to {err:.3g} (cloud extent {extent:.3g}); use .ply"
+        )
 
 
 def _save_current(ms, path: str, cloud: Cloud) -> set:

@@ -198,3 +198,14 @@ def test_xyz_round_trip_is_full_precision_and_rejects_nan_rows(tmp_path):
     bad.write_text("0 0 0\nnan 1 2\n1 1 1\n")
     back = load_cloud(str(bad))  # read as is; the filters reject the NaN row by index
     assert len(back) == 3 and np.isnan(back.points[1, 0])
+
+
+def test_e57_round_trip_and_float32_guard(tmp_path):
+    pts = sphere_points(300)
+    path = tmp_path / "c.e57"
+    save_cloud(Cloud(pts), str(path))
+    assert np.allclose(load_cloud(str(path)).points, pts, rtol=0, atol=1e-6)
+    far = tmp_path / "far.e57"
+    with pytest.raises(PointCloudError, match="float32"):
+        save_cloud(Cloud(pts + 1e6), str(far))
+    assert not far.exists()

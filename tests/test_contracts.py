@@ -84,6 +84,7 @@ def test_bad_clouds_raise_point_cloud_error(spec, part):
         (part.points[:5], "at least"),
         (t * [1.0, 2.0, 3.0], "collinear"),
         (np.ones((300, 3)), "coincide"),
+        (np.r_[part.points, part.points[:3]], "duplicate"),
     ):
         with pytest.raises(PointCloudError, match=msg):
             _call(spec, cloud, None)

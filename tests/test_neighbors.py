@@ -93,3 +93,37 @@ def test_pca_normals_rotate_with_the_cloud():
     n1 = pca_normals(p, 12, orient=False)
     n2 = pca_normals(p @ r.T, 12, orient=False)
     assert np.allclose(np.abs(np.einsum("ij,ij->i", n1 @ r.T, n2)), 1.0, atol=1e-9)
+
+
+def test_pca_of_a_sphere_patch_has_the_known_answer():
+    # a cap of angular radius a on the unit sphere: normal radial, and the
+    # surface variation of a uniform cap is known in closed form
+    a = 0.2
+    g = np.random.default_rng(9)
+    n = 200_000
+    cos_t = 1 - g.random(n) * (1 - np.cos(a))  # uniform on the cap
+    phi = g.random(n) * 2 * np.pi
+    s = np.sqrt(1 - cos_t**2)
+    cap = np.c_[s * np.cos(phi), s * np.sin(phi), cos_t]
+    res = weighted_pca(cap, np.arange(n)[None, :])
+    assert abs(abs(res.normals[0, 2]) - 1) < 1e-6
+    # variances: z uniform on [cos a, 1] -> (1 - cos a)^2 / 12; x, y: E[s^2] / 2
+    c = np.cos(a)
+    var_z = (1 - c) ** 2 / 12
+    var_xy = (1 - (1 + c + c * c) / 3) / 2  # E[1 - z^2] / 2 with z ~ U[c, 1]
+    assert np.allclose(res.eigenvalues[0], [var_z, var_xy, var_xy], rtol=2e-2)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_h_relative_quantities_are_scale_and_motion_invariant(scale):
+    p = sphere_points(3000, seed=10) * [1.0, 0.7, 0.4]
+    r = random_rotation(11)
+    q = (scale * p) @ r.T + [5e5, -3e5, 1e5]
+    assert np.isclose(average_spacing(q) / scale, average_spacing(p), rtol=1e-8)
+    _, i1 = knn(p, 12)
+    _, i2 = knn(q, 12)
+    a, b = weighted_pca(p, i1), weighted_pca(q - q.mean(axis=0), i2)
+    # float64 at a 5e5 offset resolves ~1e-10: a 1e-3-scale cloud keeps ~6 digits
+    assert np.allclose(a.surface_variation, b.surface_variation, rtol=1e-4, atol=1e-9)
+    assert np.allclose(a.border, b.border, rtol=1e-4, atol=1e-6)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", a.normals @ r.T, b.normals)), 1, atol=1e-6)
