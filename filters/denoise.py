@@ -72,7 +72,8 @@ PARAMS = (
           closed="right", unit="h"),
     Param("sigma_d", float, 2.0, "Spatial range σ_d of θ (4.3)", low=0.0, high=50.0,
           closed="right", unit="h"),
-    Param("radius", float, None, "Neighbourhood radius r; None = 1.5 σ_d (thesis §4.5.1: σ_d)",
+    Param("radius", float, None,
+          "Neighbourhood radius r; None = 1.5 σ_d (thesis §4.5.1: σ_d)",
           low=0.0, high=50.0, closed="right", unit="h", optional=True),
     Param("sigma_n_deg", float, 15.0, "Normal-similarity angle σ_n of w_ij (4.4) and "
           "of the edge detector (4.16)", low=0.0, high=90.0, closed="right", unit="deg"),
@@ -88,8 +89,9 @@ PARAMS = (
     Param("n_iter", int, 6, "Outer iterations j_max (thesis §4.5.1: 10, 16, 20 or 50)",
           low=1, high=500, unit="count"),
     Param("curved_iter", int, 2, "Outer iterations after which non-edge points on "
-          "curved parts (sag |c|r² > 0.05h) stop moving; ≥ n_iter = thesis (all points "
-          "move in every iteration)", low=0, high=500, unit="count", advanced=True),
+          "curved parts (sag |c|r² > 0.05h) stop moving; ≥ n_iter = thesis (all "
+          "points move in every iteration)", low=0, high=500, unit="count",
+          advanced=True),
     Param("inner_iter", int, 2, "Largest number of (n, τ) alternations per outer "
           "iteration", low=1, high=100, unit="count", advanced=True),
     Param("init_iter", int, 3, "Passes of the reweighted eigen-iteration (4.9) for n⁰",
@@ -441,7 +443,8 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
             good = det > 1e-9 * np.maximum(s0 * s2, 1e-300)
             a = np.where(good, (b0 * s2 - b1 * s1) / np.where(good, det, 1.0), t_i)
             offset[s:e] = a
-            curv[s:e] = np.where(good, (s0 * b1 - s1 * b0) / np.where(good, det, 1.0), 0.0)
+            curv[s:e] = np.where(good, (s0 * b1 - s1 * b0) / np.where(good, det, 1.0),
+                                 0.0)
         if not propose:
             return
         # --- τ-step (4.14): one IRLS sweep from the current τ
@@ -635,7 +638,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
                   sigma_d: float = 2.0, radius: float | None = None,
                   sigma_n_deg: float = 15.0, rho: float = 0.7, delta: float = 1e-4,
                   epsilon: float = 4.0, edge_threshold: float = 0.5, n_iter: int = 6,
-                  curved_iter: int = 2, inner_iter: int = 2, init_iter: int = 3, tol: float = 1e-3,
+                  curved_iter: int = 2, inner_iter: int = 2, init_iter: int = 3,
+                  tol: float = 1e-3,
                   edge_correction: bool = False, curvature_offset: bool = True,
                   tv_norm: str = "l2", k_max: int = 32,
                   seed: int | None = None) -> DenoiseResult:
@@ -868,7 +872,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     frozen = np.zeros(n, dtype=bool)
     frozen_n = np.zeros((n, 3))
     for j in range(p["n_iter"]):
-        nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, p["inner_iter"], p["tol"])
+        nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, p["inner_iter"],
+                                                         p["tol"])
         history.append(hist_j)
         # position update (4.15), sign corrected, bounded by ε
         shift = off if p["curvature_offset"] else tau

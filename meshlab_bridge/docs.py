@@ -3,7 +3,8 @@ docs.py
 -------
 Documentation generated from the registry: the README's filter table.
 
-    python -m meshlab_bridge.docs      # prints the table
+    python -m meshlab_bridge.docs              # prints the table
+    python -m meshlab_bridge.docs README.md    # rewrites the table in README.md
 """
 
 from __future__ import annotations
@@ -43,5 +44,17 @@ def filter_table_markdown() -> str:
     return BEGIN + "\n" + "\n".join(rows) + "\n" + END
 
 
+def update_readme(path: str) -> None:
+    """Replace the generated table between the markers in ``path``."""
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    start, end = text.index(BEGIN), text.index(END) + len(END)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text[:start] + filter_table_markdown() + text[end:])
+
+
 if __name__ == "__main__":
-    sys.stdout.write(filter_table_markdown() + "\n")
+    if len(sys.argv) > 1:
+        update_readme(sys.argv[1])
+    else:
+        sys.stdout.write(filter_table_markdown() + "\n")

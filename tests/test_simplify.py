@@ -161,5 +161,5 @@ def test_density_adapt_follows_input_density():
 def test_duplicated_points_rejected():
     rng = np.random.default_rng(0)
     P = np.repeat(rng.random((50, 3)), 20, axis=0)
-    with pytest.raises(PointCloudError, match="h = 0"):
+    with pytest.raises(PointCloudError, match="duplicate point"):
         S.simplify_sdbs(P, ratio=0.1)
