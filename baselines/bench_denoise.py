@@ -519,7 +519,7 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
     md = ["# Denoising speed (same run, same data, each in a fresh process)", "",
           "Noisy bunny sample (Gaussian 0.3h along the normal). Times are wall seconds of "
           "the call in the child; peak MB is the child's peak RSS (interpreter and imports "
-          "included). Ours runs its defaults (one 32-NN query, 10 outer iterations, MST-oriented output normals); CGAL "
+          "included). Ours runs its defaults (one 32-NN query, 6 outer iterations, MST-oriented output normals); CGAL "
           "jet_smooth_point_set k=24 (TBB, all cores); MeshLab RIMLS default parameters "
           "(single-threaded; timed at 100K only, since it takes ≈430 s at 1M); the 16-NN "
           "pass is one scipy cKDTree build + query with all cores.", "",

@@ -32,14 +32,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import (breadth_first_order, connected_components,
-                                  minimum_spanning_tree)
 
 from ._params import Param, resolve_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_spread)
-from .neighbors import SPACING_K, build_tree, centered
+from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
 
 log = logging.getLogger("pcprep")
 
@@ -541,56 +538,6 @@ def _edge_correct(ctx: _Ctx, normals: np.ndarray, edge: np.ndarray, rho: float,
     return int(moved.sum())
 
 
-def _orient_mst(x: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int
-                ) -> np.ndarray:
-    """Consistent orientation by MST propagation (Hoppe 1992) on the first ``k``
-    neighbours of the filter's own neighbour array (no second k-NN query; float32
-    edge costs keep the graph small at 10⁶ points).  Each connected component is
-    rooted at its highest point, whose normal is made to point toward +z, as in
-    :func:`filters.neighbors.orient_normals_mst`."""
-    n = len(x)
-    k = min(k, idx.shape[1] - 1)
-    if n < 2 or k < 1:
-        return normals.copy()
-    rows = np.repeat(np.arange(n, dtype=idx.dtype), k)
-    cols = idx[:, 1:k + 1].ravel()
-    cost = np.empty((n, k), dtype=np.float32)  # noqa: NPY-empty -- filled per column
-    for c in range(k):
-        cost[:, c] = np.abs(np.einsum("ij,ij->i", normals, normals[idx[:, c + 1]]))
-    cost = (1.0 - cost).ravel() + np.float32(1e-6)  # > 0 so every edge is stored
-    graph = coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
-    del rows, cols, cost
-    graph = graph.maximum(graph.T)
-    mst = minimum_spanning_tree(graph)
-    del graph
-    ncomp, labels = connected_components(mst, directed=False)
-    order = np.lexsort((-x[:, 2], labels))
-    first = np.ones(n, dtype=bool)
-    first[1:] = labels[order[1:]] != labels[order[:-1]]
-    roots = order[first]
-    parent = np.full(n, -1, dtype=np.int64)
-    sym = mst + mst.T
-    for r in roots:  # one BFS per connected component, not per point
-        _, pred = breadth_first_order(sym, int(r), directed=False,
-                                      return_predecessors=True)
-        comp = pred >= 0
-        parent[comp] = pred[comp]
-    parent[roots] = roots
-    is_root = np.zeros(n, dtype=bool)
-    is_root[roots] = True
-    rel = np.where(np.einsum("ij,ij->i", normals, normals[parent]) < 0, -1.0, 1.0)
-    rel[is_root] = 1.0
-    acc, ptr = rel.copy(), parent.copy()
-    live = ~is_root[ptr]
-    while live.any():  # pointer jumping: the sign of i = product of rel up to its root
-        nxt = ptr[live]
-        acc[live] *= acc[nxt]
-        ptr[live] = ptr[nxt]
-        live = ~is_root[ptr]
-    sign = acc * np.where(normals[ptr, 2] < 0, -1.0, 1.0)
-    return normals * sign[:, None]
-
-
 # ---------------------------------------------------------------------------
 # public API
 
@@ -901,7 +848,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
         same = np.einsum("ij,ij->i", frozen_n, nrm) >= 0
         nrm = np.where(frozen[:, None], np.where(same[:, None], frozen_n, -frozen_n), nrm)
     if normals is None:
-        nrm = _orient_mst(ctx.x, nrm, idx, MST_K)
+        k = min(MST_K, idx.shape[1] - 1)
+        nrm = orient_normals_mst(ctx.x, nrm, k=k, neighbors=idx[:, 1:k + 1])
     out_n = nrm[inv]
     out_p = ctx.x[inv] * h + centre
     if normals is not None:

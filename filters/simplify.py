@@ -86,22 +86,29 @@ class SimplifyResult:
 
 
 # --------------------------------------------------------------------------- features
-def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=None):
+def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=None,
+                  nn=None):
     """Per-point feature F = (n, σ, p) of thesis §6.3.1 and the spacing h.
+
+    ``nn`` = (dist, idx): k-NN lists (self first) with at least ``k`` columns,
+    already computed on ``points`` (their first ``k`` columns are used).
 
     Returns ``F (n, 7)``, ``h``, ``dist (n, k)``, ``idx (n, k)``.
     """
     P = points - points.mean(axis=0)
-    tree = build_tree(P) if tree is None else tree
-    dist, idx = knn(P, k, tree=tree)
-    h = float(dist[:, 1:7].mean())  # mean distance to the 6 nearest neighbours
+    if nn is None:
+        tree = build_tree(P) if tree is None else tree
+        dist, idx = knn(P, k, tree=tree)
+    else:
+        dist, idx = nn[0][:, :k], nn[1][:, :k]  # float32 lists stay float32
+    h = float(dist[:, 1:7].mean(dtype=np.float64))  # mean distance to the 6 nearest neighbours
     diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     if not np.isfinite(h) or h <= 1e-9 * diag:
         raise PointCloudError("simplify_sdbs: every point coincides with its "
                               "neighbours (h = 0)")
     # (6.1) with exp(-d²/s²), s = the point's mean neighbour distance (the
     # thesis' exp(-d²/k_i²) mixes a length with a count)
-    s = np.maximum(dist[:, 1:].mean(axis=1), 1e-300)
+    s = np.maximum(dist[:, 1:].mean(axis=1), 1e-30 * h)
     w = np.exp(-(dist / s[:, None]) ** 2)
     pca = weighted_pca(P, idx, w)
     n = pca.normals.copy()
@@ -138,81 +145,53 @@ def saliency_scores(F: np.ndarray, *, n_atoms: int, alpha: float, max_iter: int,
 
 
 # --------------------------------------------------------------------------- greedy
-def _cover_edges(P, dist, idx, rank, rho, tree):
-    """Edges i → j with j within ρ_i of i and i visited before j (rank_i < rank_j).
-
-    Candidates come from the stored k-NN lists; rows whose list does not reach
-    ρ_i are completed by an exact ball query.
-    """
+def _list_edges(dist, idx, rank, rho):
+    """Edges i → j with j within ρ_i of i and i visited before j (rank_i < rank_j),
+    from the stored k-NN lists.  Also returns the rows whose list does not reach
+    ρ_i (their edge set may be incomplete)."""
     n, K = idx.shape
-    src_l, dst_l = [], []
-    trunc = []
+    src_l, dst_l, trunc = [], [], np.zeros(n, dtype=bool)
     for s0 in range(0, n, CHUNK):
         e = min(n, s0 + CHUNK)
-        r = rho[s0:e]
+        r = rho[s0:e].astype(dist.dtype)
         m = dist[s0:e, 1:] <= r[:, None]
         nb = idx[s0:e, 1:]
         m &= rank[nb] > rank[s0:e, None]
         if K < n:
-            t = dist[s0:e, -1] <= r
-            m[t] = False
-            trunc.append(np.flatnonzero(t) + s0)
+            trunc[s0:e] = dist[s0:e, -1] <= r
         ii, jj = np.nonzero(m)
         src_l.append((ii + s0).astype(np.int32))
         dst_l.append(nb[ii, jj].astype(np.int32))
-    n_trunc = 0
-    if trunc:
-        t = np.concatenate(trunc)
-        k2 = min(n, 4 * K)
-        if t.size and k2 > K:
-            # second try: 4× longer k-NN lists for the truncated rows only
-            t_left = []
-            for s0 in range(0, t.size, CHUNK // 4):
-                tt = t[s0:s0 + CHUNK // 4]
-                d2, i2 = tree.query(P[tt], k=k2, workers=-1)
-                r = rho[tt][:, None]
-                m = (d2[:, 1:] <= r) & (rank[i2[:, 1:]] > rank[tt][:, None])
-                full = d2[:, -1] <= r[:, 0] if k2 < n else np.zeros(len(tt), dtype=bool)
-                m[full] = False
-                ii, jj = np.nonzero(m)
-                src_l.append(tt[ii].astype(np.int32))
-                dst_l.append(i2[:, 1:][ii, jj].astype(np.int32))
-                t_left.append(tt[full])
-            t = np.concatenate(t_left)
-        n_trunc = int(t.size)
-        for s0 in range(0, t.size, CHUNK // 4):
-            tt = t[s0:s0 + CHUNK // 4]
-            balls = tree.query_ball_point(P[tt], rho[tt], workers=-1)
-            lens = np.fromiter(map(len, balls), dtype=np.int64, count=len(balls))
-            bs = np.repeat(tt, lens)
-            bd = np.fromiter(chain.from_iterable(balls), dtype=np.int64, count=int(lens.sum()))
-            ok = rank[bd] > rank[bs]
-            src_l.append(bs[ok].astype(np.int32))
-            dst_l.append(bd[ok].astype(np.int32))
-    return np.concatenate(src_l), np.concatenate(dst_l), n_trunc
+    return np.concatenate(src_l), np.concatenate(dst_l), trunc
 
 
-def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
-    """Greedy removal of (6.11) without a per-point loop.
+def _ball_edges(P, rows, rank, rho, tree):
+    """Every edge i → j (j within ρ_i, rank_i < rank_j) of the given rows, by an
+    exact ball query."""
+    src_l, dst_l = [], []
+    for s0 in range(0, rows.size, CHUNK // 4):
+        tt = rows[s0:s0 + CHUNK // 4]
+        balls = tree.query_ball_point(P[tt], rho[tt], workers=-1)
+        lens = np.fromiter(map(len, balls), dtype=np.int64, count=len(balls))
+        bs = np.repeat(tt, lens)
+        bd = np.fromiter(chain.from_iterable(balls), dtype=np.int64, count=int(lens.sum()))
+        ok = rank[bd] > rank[bs]
+        src_l.append(bs[ok].astype(np.int32))
+        dst_l.append(bd[ok].astype(np.int32))
+    if not src_l:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    return np.concatenate(src_l), np.concatenate(dst_l)
 
-    Sequential rule: visit the points by decreasing ``score`` (ties by index);
-    a point not yet removed is kept and removes every later point within its
-    radius ``rho``.  Equivalent parallel form, run here in rounds: with the
-    edges i → j (j within ρ_i, i earlier), a point is removed as soon as one of
-    its sources is kept, and kept as soon as all its sources are removed.  Each
-    round decides every point whose sources are decided, so the result equals
-    the sequential one exactly (tested against a naive loop).
 
-    Returns a boolean keep mask.
-    """
-    n = len(P)
-    order = np.lexsort((np.arange(n), -score))
-    rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
-    tree = build_tree(P) if tree is None else tree
-    src, dst, n_trunc = _cover_edges(P, dist, idx, rank, rho, tree)
-    state = np.zeros(n, dtype=np.int8)  # 0 undecided, 1 kept, 2 removed
-    undecided = np.arange(n)
+def _rounds(n, src, dst, state=None):
+    """Parallel form of the sequential greedy on the edge DAG src → dst:
+    returns the state (1 kept, 2 removed) and the number of rounds.  A given
+    ``state`` (0 = undecided) is completed in place."""
+    if state is None:
+        state = np.zeros(n, dtype=np.int8)  # 0 undecided, 1 kept, 2 removed
+    undecided = np.flatnonzero(state == 0)
+    live = state[dst] == 0
+    src, dst = src[live], dst[live]
     rounds = 0
     while undecided.size:
         rounds += 1
@@ -227,8 +206,53 @@ def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
         undecided = undecided[~cu & wu]
         live = (state[dst] == 0) & (state[src] != 2)
         src, dst = src[live], dst[live]
-    log.info("simplify_sdbs: greedy removal in %d rounds (%d exact ball queries)",
-             rounds, n_trunc)
+    return state, rounds
+
+
+def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
+    """Greedy removal of (6.11) without a per-point loop.
+
+    Sequential rule: visit the points by decreasing ``score`` (ties by index);
+    a point not yet removed is kept and removes every later point within its
+    radius ``rho``.  Equivalent parallel form, run here in rounds: with the
+    edges i → j (j within ρ_i, i earlier), a point is removed as soon as one of
+    its sources is kept, and kept as soon as all its sources are removed.  Each
+    round decides every point whose sources are decided, so the result equals
+    the sequential one exactly (tested against a naive loop).
+
+    Edges come from the stored k-NN lists ``dist``/``idx``.  Rows whose list
+    does not reach ρ_i need an exact ball query, but only if they end up kept
+    (a removed point removes nobody): the rounds are run with the list edges,
+    the kept rows with incomplete lists get their ball edges, and this repeats
+    until no kept row is incomplete.  By induction over the visiting order the
+    result then equals the one with every edge.
+
+    Returns a boolean keep mask.
+    """
+    n = len(P)
+    order = np.lexsort((np.arange(n), -score))
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    src, dst, trunc = _list_edges(dist, idx, rank, rho)
+    rounds = n_ball = passes = 0
+    state = None
+    while True:
+        passes += 1
+        state, r = _rounds(n, src, dst, state)
+        rounds += r
+        need = np.flatnonzero((state == 1) & trunc)
+        if need.size == 0:
+            break
+        if tree is None:
+            tree = build_tree(P)
+        s2, d2 = _ball_edges(P, need, rank, rho, tree)
+        src, dst = np.concatenate([src, s2]), np.concatenate([dst, d2])
+        trunc[need] = False
+        n_ball += need.size
+        # only points visited after the earliest completed row can change
+        state[rank > rank[need].min()] = 0
+    log.info("simplify_sdbs: greedy removal in %d rounds, %d pass(es), %d exact ball "
+             "queries", rounds, passes, n_ball)
     return state == 1
 
 
@@ -246,13 +270,9 @@ def _knn32(P, k, tree):
     return gd, gi
 
 
-def _graph_k(rho_over_h: np.ndarray, n: int) -> int:
-    """Length of the stored k-NN lists for the cover edges: enough to hold the
-    ρ-ball of three points in four (a ball of radius r·h holds about 4.5 r²
-    points on a surface sampled at spacing h); longer balls fall back to an
-    exact query.  Capped at 48 to bound memory (n·48·8 bytes)."""
-    q = float(np.quantile(rho_over_h, 0.75))
-    return int(min(n, max(16, min(48, np.ceil(4.5 * q * q)))))
+#: length of the stored k-NN lists (PCA neighbourhoods and removal candidates);
+#: kept rows whose removal ball is longer get an exact ball query
+GRAPH_K = 32
 
 
 # --------------------------------------------------------------------------- main
@@ -377,10 +397,12 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
 
     P = P - P.mean(axis=0)
     tree = build_tree(P)
-    F, h, fdist = sdbs_features(P, N, p["k"], p["feature_scale"], tree=tree)[:3]
+    # one k-NN query serves h, the PCA and the removal candidates
+    gd, gi = _knn32(P, min(n, max(p["k"], GRAPH_K)), tree)
+    F, h, fdist = sdbs_features(P, N, p["k"], p["feature_scale"], nn=(gd, gi))[:3]
     # length unit of the radius: h^(1-β) h_i^β with h_i the local spacing
     # (mean distance to the 6 nearest neighbours) and β = density_adapt
-    local = np.maximum(fdist[:, 1:7].mean(axis=1), 1e-3 * h)
+    local = np.maximum(fdist[:, 1:7].mean(axis=1, dtype=np.float64), 1e-3 * h)
     unit = h * (local / h) ** p["density_adapt"]
     del fdist, local
     log.info("simplify_sdbs: features of %d points, h = %.4g", n, h)
@@ -390,10 +412,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     del F
     inv = 1.0 / np.maximum(score, p["sf_floor"])
     d0 = p["delta"] if target is None else _delta_guess(target, n, inv)
-    kg = _graph_k(d0 * inv, n)
-    gd, gi = _knn32(P, kg, tree)
-    log.info("simplify_sdbs: saliency done; %d-NN lists for the removal, first delta %.4g h",
-             kg, d0)
+    log.info("simplify_sdbs: saliency done; first delta %.4g h", d0)
 
     def run(dl):
         return greedy_keep(P, gd, gi, score, dl * unit * inv, tree=tree)
@@ -420,30 +439,47 @@ def _delta_guess(target: int, n: int, inv: np.ndarray) -> float:
     return float(np.sqrt(n / (target * np.mean(inv ** 2))))
 
 
+#: first guess of the exponent e in count ∝ δ^-e (measured ≈ 1.5 on the
+#: benchmark scans: greedy balls overlap, so the count falls slower than δ^-2)
+_COUNT_EXP = 1.5
+
+
 def _search_delta(run, target: int, d: float, max_eval: int = 30):
-    """Find δ whose greedy count is within 1 % of ``target``."""
+    """Find δ whose greedy count is within 1 % of ``target``.
+
+    Secant steps on log count vs log δ through the last two evaluations (the
+    first step assumes count ∝ δ^-1.5), kept inside the bracket once the
+    target is bracketed."""
     tol = max(1, int(0.01 * target))
     lo = hi = None  # lo: δ with count > target; hi: δ with count < target
-    best = None
+    best = prev = None
     for _ in range(max_eval):
         keep = run(d)
         c = int(keep.sum())
+        log.info("simplify_sdbs: delta %.5g h keeps %d points (target %d)", d, c, target)
         if best is None or abs(c - target) < abs(best[2] - target):
             best = (d, keep, c)
         if abs(c - target) <= tol:
             break
         if c > target:
-            lo = (d, c)
+            lo = (d, c) if lo is None or d > lo[0] else lo
         else:
-            hi = (d, c)
+            hi = (d, c) if hi is None or d < hi[0] else hi
+        e = _COUNT_EXP
+        if prev is not None and prev[0] != d and prev[1] != c and min(c, prev[1]) > 0:
+            e = -(np.log(c) - np.log(prev[1])) / (np.log(d) - np.log(prev[0]))
+            e = float(min(max(e, 0.5), 4.0)) if np.isfinite(e) else _COUNT_EXP
+        prev = (d, c)
+        d_new = d * float((max(c, 1) / target) ** (1.0 / e))
         if lo is not None and hi is not None:
-            # interpolate in log-log between the bracket ends, stay inside
-            (d0, c0), (d1, c1) = lo, hi
-            t = (np.log(target) - np.log(c0)) / (np.log(c1) - np.log(c0))
-            t = min(max(t, 0.1), 0.9)
-            d = float(np.exp(np.log(d0) + t * (np.log(d1) - np.log(d0))))
-        else:
-            d = d * float(np.sqrt(max(c, 1) / target))  # count ∝ δ^-2
+            a, b = np.log(lo[0]), np.log(hi[0])
+            t = (np.log(d_new) - a) / (b - a)
+            if not 0.05 <= t <= 0.95:  # secant left the bracket: interpolate in it
+                (d0, c0), (d1, c1) = lo, hi
+                t = (np.log(target) - np.log(c0)) / (np.log(c1) - np.log(c0))
+                t = min(max(t, 0.1), 0.9)
+                d_new = float(np.exp(a + t * (b - a)))
+        d = d_new
     return best[0], best[1]
 
 
