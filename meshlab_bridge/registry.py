@@ -13,7 +13,7 @@ Spec modules live in ``meshlab_bridge/specs/`` (one per filter family) and call
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
 from filters._params import UNITS, Param, resolve_params  # noqa: F401  (re-exported)
 from filters._validation import InvalidParameterError

@@ -7,7 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from meshlab_bridge.docs import BEGIN, END, filter_table_markdown
 
