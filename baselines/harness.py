@@ -416,7 +416,10 @@ def to_jsonable(obj):
     if isinstance(obj, Outcome):
         d = obj.summary()
         v = obj.value
-        d["value"] = None if isinstance(v, (np.ndarray, tuple)) else to_jsonable(v)
+        # keep small scalar results only: arrays, tuples and result records
+        # (per-point masks, clouds) would bloat the report's JSON
+        small = isinstance(v, (bool, int, float, str, np.number, type(None)))
+        d["value"] = to_jsonable(v) if small else None
         return to_jsonable(d)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: to_jsonable(getattr(obj, f.name))
