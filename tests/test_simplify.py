@@ -163,3 +163,50 @@ def test_duplicated_points_rejected():
     P = np.repeat(rng.random((50, 3)), 20, axis=0)
     with pytest.raises(PointCloudError, match="duplicate point"):
         S.simplify_sdbs(P, ratio=0.1)
+
+
+def test_greedy_long_balls_completed_lazily():
+    """Lists far shorter than most balls: nearly every kept row needs the
+    exact ball query (several completion passes); still the sequential answer."""
+    rng = np.random.default_rng(5)
+    P = rng.random((1200, 3)) * [1, 1, 0.02]
+    score = rng.random(1200)
+    rho = 0.06 / np.maximum(score, 0.2)
+    dist, idx = knn(P, 5)
+    got = S.greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho)
+    np.testing.assert_array_equal(got, _naive_greedy(P, score, rho))
+
+
+def test_features_from_shared_knn_lists(cube):
+    """The single float32 k-NN query gives the same features as a fresh query."""
+    P = cube.points - cube.points.mean(axis=0)
+    F0, h0 = S.sdbs_features(P, None, 16, "balanced")[:2]
+    gd, gi = S._knn32(P, 32, build_tree(P))
+    F1, h1 = S.sdbs_features(P, None, 16, "balanced", nn=(gd, gi))[:2]
+    assert abs(h1 - h0) <= 1e-6 * h0
+    np.testing.assert_allclose(F1, F0, atol=1e-4)
+
+
+@pytest.mark.parametrize("name,ratio", [("fandisk", 0.05), ("sphere", 0.2),
+                                        ("block", 0.5)])
+def test_delta_search_hits_count(name, ratio):
+    """The δ search ends within 1 % of the target in a few greedy runs."""
+    s = make_shape(name, n=8000, seed=1)
+    calls = []
+    orig = S._search_delta
+
+    def spy(run, target, d, max_eval=30):
+        def counted(dl):
+            calls.append(dl)
+            return run(dl)
+        return orig(counted, target, d, max_eval)
+
+    S._search_delta = spy
+    try:
+        res = S.simplify_sdbs(s.points, ratio=ratio, seed=0, **FAST)
+    finally:
+        S._search_delta = orig
+    target = round(ratio * len(s.points))
+    assert len(res.keep_idx) == target
+    assert abs(res.n_greedy - target) <= max(1, int(0.01 * target))
+    assert len(calls) <= 6
