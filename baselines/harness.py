@@ -48,6 +48,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from meshlab_bridge.convert import file_mode
+
 log = logging.getLogger("pcprep")
 
 #: default time limit of :func:`run_isolated`, seconds
@@ -451,6 +453,7 @@ def _atomic_write(path: Path, text: str) -> None:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, file_mode())  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -188,6 +188,7 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
                 f"cannot write {path!r}: the {ext} format cannot store per-vertex "
                 f"{' and '.join(missing)}; use .ply"
             )
+        os.chmod(tmp, file_mode())  # mkstemp creates 0600
         os.replace(tmp, path)
     except Exception as exc:
         if os.path.exists(tmp):
@@ -196,6 +197,13 @@ def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise PointCloudError(f"cannot write {path!r}: {msg}") from exc
+
+
+def file_mode() -> int:
+    """Permissions of a newly created file under the current umask (0644 usually)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def _check_float32(cloud: Cloud, path: str) -> None:
@@ -273,6 +281,7 @@ def _save_xyz(cloud: Cloud, path: str, folder: str, require: tuple[str, ...]) ->
     os.close(fd)
     try:
         np.savetxt(tmp, cols, fmt="%.17g")
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except OSError as exc:
         if os.path.exists(tmp):

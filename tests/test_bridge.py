@@ -209,3 +209,12 @@ def test_e57_round_trip_and_float32_guard(tmp_path):
     with pytest.raises(PointCloudError, match="float32"):
         save_cloud(Cloud(pts + 1e6), str(far))
     assert not far.exists()
+
+
+def test_written_files_get_normal_permissions(tmp_path):
+    import os
+
+    save_cloud(Cloud(sphere_points(50)), str(tmp_path / "p.ply"))
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "p.ply").stat().st_mode & 0o777 == 0o666 & ~mask
