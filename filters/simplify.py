@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import sparse
+from . import _kernels, sparse
 from ._params import Param, resolve_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
@@ -237,6 +237,8 @@ def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
     order = np.lexsort((np.arange(n), -score))
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
+    if _kernels.ENABLED:
+        return _greedy_compiled(P, dist, idx, rho, order, rank, tree)
     src, dst, trunc = _list_edges(dist, idx, rank, rho)
     rounds = n_ball = passes = 0
     state = None
@@ -260,6 +262,37 @@ def greedy_keep(P, dist, idx, score, rho, tree=None) -> np.ndarray:
             state[rank >= rank[hit].min()] = 0
     log.info("simplify_sdbs: greedy removal in %d rounds, %d pass(es), %d exact ball "
              "queries", rounds, passes, n_ball)
+    return state == 1
+
+
+def _greedy_compiled(P, dist, idx, rho, order, rank, tree):
+    """``greedy_keep`` by the compiled sequential loop: one pass over the
+    stored lists, then exact ball queries for the kept rows whose list does
+    not reach ρ_i and a new pass with those balls, until no kept row is
+    incomplete (same induction as the rounds)."""
+    n, K = idx.shape
+    r32 = rho.astype(dist.dtype)
+    trunc = dist[:, -1] <= r32 if K < n else np.zeros(n, dtype=bool)
+    src = np.zeros(0, np.int64)
+    dst = np.zeros(0, np.int64)
+    done = np.zeros(n, dtype=bool)  # rows whose exact ball is in (src, dst)
+    passes = 0
+    while True:
+        passes += 1
+        order_e = np.argsort(src, kind="stable")
+        ptr = np.searchsorted(src[order_e], np.arange(n + 1)).astype(np.int64)
+        state = np.zeros(n, dtype=np.int8)
+        _kernels.greedy_sequential(order, rank, dist, idx, r32, ptr, dst[order_e], state)
+        need = np.flatnonzero((state == 1) & trunc & ~done)
+        if need.size == 0:
+            break
+        s2, d2 = _ball_edges(P, need, rank, rho, tree if tree is not None
+                             else build_tree(P))
+        src = np.concatenate([src, s2.astype(np.int64)])
+        dst = np.concatenate([dst, d2.astype(np.int64)])
+        done[need] = True
+    log.info("simplify_sdbs: greedy removal in %d sequential pass(es), %d exact ball "
+             "queries", passes, int(done.sum()))
     return state == 1
 
 

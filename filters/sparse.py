@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse as sp
 
+from . import _kernels
 from ._validation import InvalidParameterError, check_param, check_seed
 
 log = logging.getLogger("pcprep")
@@ -159,6 +160,16 @@ def _omp_chunk(X, D, L, tol):
     return sup, coef
 
 
+def _omp_codes(X, D, L, tol):
+    """Padded OMP codes (support (c, L), coef (c, L)) of one chunk, by the
+    compiled kernel or the NumPy solver."""
+    if _kernels.ENABLED:
+        G = np.ascontiguousarray(D @ D.T)
+        return _kernels.omp_batch(np.ascontiguousarray(X), np.ascontiguousarray(D), G,
+                                  int(L), float(tol or 0.0), tol is not None, _EPS)
+    return _omp_chunk(X, D, L, tol)
+
+
 def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -> sp.csr_matrix:
     """Orthogonal matching pursuit of many signals at once (problem (3.6)).
 
@@ -204,7 +215,7 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
     with _single_blas():
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
-            r, c_, v = _compact(s0, *_omp_chunk(X[s0:e], D, L, tol))
+            r, c_, v = _compact(s0, *_omp_codes(X[s0:e], D, L, tol))
             rows.append(r)
             cols.append(c_)
             vals.append(v)
@@ -355,6 +366,14 @@ SCREEN = 48
 
 def _lasso_chunk(X, D, alpha, K, max_steps):
     S = D.shape[0]
+    if _kernels.ENABLED:
+        G = np.ascontiguousarray(D @ D.T)
+        act, beta, n_hit = _kernels.lars_batch(np.ascontiguousarray(X),
+                                               np.ascontiguousarray(D), G, float(alpha),
+                                               int(K), int(max_steps))
+        if n_hit:
+            log.warning("lasso_lars: %d signal(s) hit max_steps", n_hit)
+        return act, beta
     if S <= 64:
         return _lars_chunk(X, D, alpha, K, max_steps)
     corr = -np.abs(X.astype(np.float32) @ D.T.astype(np.float32))
@@ -459,7 +478,6 @@ def _update_atoms(Xt, D, sup, coef, rng):
     ``sup``/``coef`` (m, L) hold each training signal's support and
     coefficients; they are updated in place together with D.
     """
-    m = Xt.shape[0]
     S = D.shape[0]
     recon = np.einsum("ml,mld->md", coef, D[sup])
     E_all = Xt - recon
@@ -468,6 +486,34 @@ def _update_atoms(Xt, D, sup, coef, rng):
     order = np.argsort(flat[nz], kind="stable")
     pos = np.flatnonzero(nz)[order]  # flat positions grouped by atom
     starts = np.searchsorted(flat[nz][order], np.arange(S + 1))
+    if _kernels.ENABLED:
+        used = _kernels.ksvd_update(D, sup, coef, E_all, pos.astype(np.int64),
+                                    starts.astype(np.int64))
+        unused = np.flatnonzero(~used).tolist()
+    else:
+        unused = _update_atoms_numpy(D, sup, coef, E_all, pos, starts)
+    # like Elad's K-SVD toolbox ("clear dictionary"): an atom nearly equal to
+    # another one (|cos| > 0.99) is wasted as well
+    cos = np.abs(D @ D.T)
+    np.fill_diagonal(cos, 0.0)
+    dup = np.flatnonzero(np.triu(cos > 0.99).any(axis=0))
+    unused = sorted(set(unused) | set(dup.tolist()))
+    if unused:
+        # replace unused atoms by the worst-represented training signals
+        err = np.einsum("ij,ij->i", E_all, E_all)
+        worst = np.argsort(-err, kind="stable")[: len(unused)]
+        for j, w in zip(unused, worst):
+            v = Xt[w]
+            nv = np.linalg.norm(v)
+            D[j] = v / nv if nv > 1e-12 else rng.standard_normal(D.shape[1])
+            D[j] /= np.linalg.norm(D[j])
+    return len(unused)
+
+
+def _update_atoms_numpy(D, sup, coef, E_all, pos, starts):
+    """Atom loop of ``_update_atoms`` in NumPy (reference / no-numba path);
+    returns the unused atoms."""
+    S = D.shape[0]
     unused = []
     for j in range(S):  # loop over atoms (Alg. 3.3 line 5)
         p = pos[starts[j]:starts[j + 1]]
@@ -486,22 +532,7 @@ def _update_atoms(Xt, D, sup, coef, rng):
         D[j] = dj
         coef[r, l] = new
         E_all[r] = Ej - new[:, None] * dj[None, :]
-    # like Elad's K-SVD toolbox ("clear dictionary"): an atom nearly equal to
-    # another one (|cos| > 0.99) is wasted as well
-    cos = np.abs(D @ D.T)
-    np.fill_diagonal(cos, 0.0)
-    dup = np.flatnonzero(np.triu(cos > 0.99).any(axis=0))
-    unused = sorted(set(unused) | set(dup.tolist()))
-    if unused:
-        # replace unused atoms by the worst-represented training signals
-        err = np.einsum("ij,ij->i", E_all, E_all)
-        worst = np.argsort(-err, kind="stable")[: len(unused)]
-        for j, w in zip(unused, worst):
-            v = Xt[w]
-            nv = np.linalg.norm(v)
-            D[j] = v / nv if nv > 1e-12 else rng.standard_normal(D.shape[1])
-            D[j] /= np.linalg.norm(D[j])
-    return len(unused)
+    return unused
 
 
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
@@ -594,7 +625,7 @@ def _ksvd_iterate(Xt, D, L, tol, max_iter, rng, errors):
     for it in range(max_iter):
         sup, coef = [], []
         for s0 in range(0, mt, CHUNK):
-            a, b = _omp_chunk(Xt[s0:s0 + CHUNK], D, L, tol)
+            a, b = _omp_codes(Xt[s0:s0 + CHUNK], D, L, tol)
             sup.append(a)
             coef.append(b)
         sup, coef = np.concatenate(sup), np.concatenate(coef)

@@ -21,3 +21,15 @@ def random_rotation(seed=0):
     if np.linalg.det(q) < 0:
         q[:, 0] = -q[:, 0]
     return q
+
+
+@pytest.fixture(params=["compiled", "numpy"])
+def solver_path(request, monkeypatch):
+    """Run a test once with the compiled kernels (numba) and once with the
+    NumPy reference implementations; both must give the same answers."""
+    from filters import _kernels
+
+    if request.param == "compiled" and not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    monkeypatch.setattr(_kernels, "ENABLED", request.param == "compiled")
+    return request.param

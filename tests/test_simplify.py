@@ -94,7 +94,7 @@ def _naive_greedy(P, score, rho):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_parallel_greedy_equals_sequential(seed):
+def test_parallel_greedy_equals_sequential(seed, solver_path):
     rng = np.random.default_rng(seed)
     P = rng.random((1500, 3)) * [1, 1, 0.05]
     score = rng.random(1500) ** 2
@@ -165,7 +165,7 @@ def test_duplicated_points_rejected():
         S.simplify_sdbs(P, ratio=0.1)
 
 
-def test_greedy_long_balls_completed_lazily():
+def test_greedy_long_balls_completed_lazily(solver_path):
     """Lists far shorter than most balls: nearly every kept row needs the
     exact ball query (several completion passes); still the sequential answer."""
     rng = np.random.default_rng(5)

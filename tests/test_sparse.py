@@ -21,7 +21,7 @@ def _planted(d, S, m, k, seed):
     return D, codes, codes @ D
 
 
-def test_omp_recovers_planted_support():
+def test_omp_recovers_planted_support(solver_path):
     D, codes, X = _planted(d=64, S=80, m=500, k=3, seed=0)
     est = sparse.omp(X, D, n_nonzero_coefs=3)
     assert sp.issparse(est) and est.shape == codes.shape
@@ -30,7 +30,7 @@ def test_omp_recovers_planted_support():
     np.testing.assert_allclose(est, codes, atol=1e-8)
 
 
-def test_omp_matches_sklearn():
+def test_omp_matches_sklearn(solver_path):
     rng = np.random.default_rng(1)
     D = rng.standard_normal((200, 7))
     D /= np.linalg.norm(D, axis=1)[:, None]
@@ -42,7 +42,7 @@ def test_omp_matches_sklearn():
     np.testing.assert_allclose(sparse.omp(X, D, tol=0.2).toarray(), ref, atol=1e-9)
 
 
-def test_omp_tol_stops_at_residual():
+def test_omp_tol_stops_at_residual(solver_path):
     rng = np.random.default_rng(2)
     D = rng.standard_normal((50, 10))
     X = rng.standard_normal((200, 10))
@@ -53,7 +53,7 @@ def test_omp_tol_stops_at_residual():
 
 
 @pytest.mark.parametrize("alpha", [0.05, 0.3, 1.0])
-def test_lasso_lars_matches_sklearn_lasso(alpha):
+def test_lasso_lars_matches_sklearn_lasso(alpha, solver_path):
     rng = np.random.default_rng(3)
     d = 7
     D = rng.standard_normal((200, d))
@@ -75,7 +75,7 @@ def test_lasso_lars_matches_sklearn_lasso(alpha):
         np.testing.assert_allclose(cor[on], alpha * np.sign(est[i][on]), rtol=1e-7)
 
 
-def test_lasso_lars_zero_above_alpha_max():
+def test_lasso_lars_zero_above_alpha_max(solver_path):
     rng = np.random.default_rng(4)
     D = rng.standard_normal((20, 5))
     D /= np.linalg.norm(D, axis=1)[:, None]
@@ -84,7 +84,7 @@ def test_lasso_lars_zero_above_alpha_max():
     assert sparse.lasso_lars(X, D, alpha=big).nnz == 0
 
 
-def test_ksvd_recovers_planted_dictionary():
+def test_ksvd_recovers_planted_dictionary(solver_path):
     D, _, X = _planted(d=16, S=24, m=2000, k=3, seed=1)
     res = sparse.ksvd(X, 24, n_nonzero_coefs=3, max_iter=40, seed=1)
     assert res.dictionary.shape == (24, 16)
@@ -95,7 +95,7 @@ def test_ksvd_recovers_planted_dictionary():
     assert res.codes.shape == (2000, 24)
 
 
-def test_ksvd_deterministic_and_subsample():
+def test_ksvd_deterministic_and_subsample(solver_path):
     rng = np.random.default_rng(5)
     X = rng.standard_normal((3000, 7))
     a = sparse.ksvd(X, 20, n_nonzero_coefs=2, max_iter=3, max_train=1000, seed=7)
@@ -133,7 +133,7 @@ def test_bad_input():
         sparse.ksvd(np.ones((5, 3)), 4, seed=-1)
 
 
-def test_lasso_lars_kkt_on_many_structured_signals():
+def test_lasso_lars_kkt_on_many_structured_signals(solver_path):
     # clustered signals (like point features) exercise atom screening, drops
     # and re-entries; every code must satisfy the Lasso optimality conditions
     rng = np.random.default_rng(6)
@@ -147,3 +147,22 @@ def test_lasso_lars_kkt_on_many_structured_signals():
     assert np.abs(cor).max() <= alpha * (1 + 1e-7)
     on = codes != 0
     np.testing.assert_allclose(cor[on], alpha * np.sign(codes[on]), rtol=1e-6)
+
+
+def test_compiled_and_numpy_paths_agree(monkeypatch):
+    """The numba kernels and the NumPy reference give the same K-SVD dictionary
+    and the same Lasso / OMP codes (up to rounding)."""
+    from filters import _kernels
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(11)
+    X = rng.standard_normal((3000, 7)) * [1, 1, 1, 0.3, 2, 2, 2]
+    out = {}
+    for enabled in (True, False):
+        monkeypatch.setattr(_kernels, "ENABLED", enabled)
+        k = sparse.ksvd(X, 40, n_nonzero_coefs=3, max_iter=4, seed=3)
+        out[enabled] = (k.dictionary, k.codes.toarray(),
+                        sparse.lasso_lars(X, k.dictionary, alpha=0.2).toarray())
+    for a, b in zip(out[True], out[False]):
+        np.testing.assert_allclose(a, b, atol=1e-8)
