@@ -190,6 +190,17 @@ if HAVE_NUMBA:
                 hit[i] = h
         return act, beta, int(hit.sum())
 
+    @njit(cache=True, nogil=True, inline="always")
+    def _minus_combination(base, coef, rows, n, A, out):
+        """out = base − Σ_k coef[k] · A[rows[k]] over the first n rows."""
+        for q in range(out.shape[0]):
+            out[q] = base[q]
+        for k in range(n):
+            ck = coef[k]
+            row = rows[k]
+            for q in range(out.shape[0]):
+                out[q] -= ck * A[row, q]
+
     @njit(cache=True, nogil=True)
     def _omp_one(x, D, G, L, tol, use_tol, eps, sup, coef, xD, c, r, M, b):
         """OMP of one signal: up to L atoms, or until ‖r‖² ≤ tol when use_tol."""
@@ -226,27 +237,15 @@ if HAVE_NUMBA:
                 b[k] = xD[sup[k]]
             _chol_solve(G, sup, n, 1e-12, M, b, coef)
             if use_tol:
-                for q in range(d):
-                    r[q] = x[q]
-                for k in range(n):
-                    ck = coef[k]
-                    row = sup[k]
-                    for q in range(d):
-                        r[q] -= ck * D[row, q]
+                _minus_combination(x, coef, sup, n, D, r)  # residual x − coef·D[s]
                 rn2 = 0.0
                 for q in range(d):
                     rn2 += r[q] * r[q]
                 if rn2 <= tol:
                     return
             if t + 1 < L:
-                # correlations with the new residual: |xD − G[:, s]·coef|
-                for jj in range(S):
-                    c[jj] = xD[jj]
-                for k in range(n):
-                    ck = coef[k]
-                    row = sup[k]
-                    for jj in range(S):
-                        c[jj] -= ck * G[row, jj]
+                # correlations with the new residual: |xD − coef·G[s]|
+                _minus_combination(xD, coef, sup, n, G, c)
                 for jj in range(S):
                     c[jj] = abs(c[jj])
 
