@@ -26,7 +26,6 @@ import numpy as np
 
 try:
     import numba
-    from numba import njit
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
@@ -40,9 +39,22 @@ ENABLED = HAVE_NUMBA
 _BLOCK = 2048
 
 
+
+def _jit(**options):
+    """``numba.njit(cache=True, nogil=True, **options)``; without the on-disk
+    cache when numba finds no writable place for it (a read-only install and
+    home), which only costs the compile time in every process."""
+    def deco(fn):
+        try:
+            return numba.njit(cache=True, nogil=True, **options)(fn)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return numba.njit(nogil=True, **options)(fn)
+    return deco
+
+
 if HAVE_NUMBA:
 
-    @njit(cache=True, nogil=True, inline="always")
+    @_jit(inline="always")
     def _chol_solve(G, act, na, ridge, M, rhs, out):
         """Solve G[act, act] · out = rhs for the first ``na`` active atoms by a
         Cholesky factorisation written into ``M``."""
@@ -68,7 +80,7 @@ if HAVE_NUMBA:
                 v -= M[r, p] * out[r]
             out[p] = v / M[p, p]
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def _lars_one(x, D, G, alpha, K, max_steps, act, beta, c, a, pen, g, M, w, s):
         """LARS-Lasso path of one signal down to ``alpha``.
 
@@ -167,7 +179,7 @@ if HAVE_NUMBA:
                 na += 1
         return na, True
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def lars_batch(X, D, G, alpha, K, max_steps):
         """LARS-Lasso codes of every row of X: (act (m, K), beta (m, K), n_hit)."""
         m = X.shape[0]
@@ -190,7 +202,7 @@ if HAVE_NUMBA:
                 hit[i] = h
         return act, beta, int(hit.sum())
 
-    @njit(cache=True, nogil=True, inline="always")
+    @_jit(inline="always")
     def _minus_combination(base, coef, rows, n, A, out):
         """out = base − Σ_k coef[k] · A[rows[k]] over the first n rows."""
         for q in range(out.shape[0]):
@@ -201,7 +213,7 @@ if HAVE_NUMBA:
             for q in range(out.shape[0]):
                 out[q] -= ck * A[row, q]
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def _omp_one(x, D, G, L, tol, use_tol, eps, sup, coef, xD, c, r, M, b):
         """OMP of one signal: up to L atoms, or until ‖r‖² ≤ tol when use_tol."""
         S, d = D.shape
@@ -249,7 +261,7 @@ if HAVE_NUMBA:
                 for jj in range(S):
                     c[jj] = abs(c[jj])
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def omp_batch(X, D, G, L, tol, use_tol, eps):
         """OMP codes of every row of X: (support (m, L), coef (m, L))."""
         m, d = X.shape
@@ -268,7 +280,7 @@ if HAVE_NUMBA:
                          M, b)
         return sup, coef
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def ksvd_update(D, sup, coef, E, pos, starts):
         """K-SVD dictionary-update stage over every atom (Alg. 3.3 lines 5-12).
 
@@ -325,7 +337,7 @@ if HAVE_NUMBA:
                     E[r, a_] -= new * dj[a_]
         return used
 
-    @njit(cache=True, nogil=True)
+    @_jit()
     def greedy_sequential(order, rank, dist, idx, rho, ptr, extra, state):
         """The greedy removal of SDBS (6.11), sequentially: visit the points in
         ``order``; a point not yet removed is kept (state 1) and removes
