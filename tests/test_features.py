@@ -119,6 +119,34 @@ def test_beats_projected_distance_under_noise(cube):
     assert ours > base + 0.1
 
 
+def test_noise_level_tracks_the_noise(cube):
+    # sqrt of the median smallest-scale λ0 / h²: ~0 on the clean cube, then
+    # growing with σ (measured ≈ 0.7σ on the synthetic parts)
+    pts, _ = centered(cube.points)
+    ks = F.scale_sizes(8, 40, 10)
+    est = []
+    for sig in (0.0, 0.1, 0.3):
+        p = pts if sig == 0 else add_noise(pts, cube.normals, sigma=sig, h=cube.h, seed=1)
+        est.append(F.noise_level(F.multiscale_features(p, ks, kind="sharp", h=cube.h)))
+    assert est[0] < 0.01
+    assert 0.4 * 0.1 < est[1] < 0.1 and 0.4 * 0.3 < est[2] < 0.3
+    # the crease neighbourhood grows with it: 16 clean, more when noisy
+    assert F.localisation_k(est[0]) == 16
+    assert 16 < F.localisation_k(est[1]) < F.localisation_k(est[2]) <= 16 * 1.9
+
+
+def test_noisy_crease_localisation_uses_more_neighbours(cube, caplog):
+    noisy = add_noise(cube.points, cube.normals, sigma=0.3, h=cube.h, seed=1)
+    with caplog.at_level("INFO", logger="pcprep"):
+        r = F.detect_sharp_features(noisy, seed=0)
+    msg = [m for m in caplog.messages if "crease neighbourhood" in m]
+    assert len(msg) == 1 and "k=16" not in msg[0]
+    # and the result still follows the mask rule
+    assert np.array_equal(r.mask, (r.score > r.threshold) & (r.crease_distance <= 0.7))
+    p, rec, f1 = precision_recall_f1(r.mask, cube.sharp)
+    assert p > 0.7 and rec > 0.7
+
+
 def test_thesis_beta_rule(cube):
     r0 = F.detect_sharp_features(cube.points, seed=0, beta=1.0)
     assert not r0.mask.any()                              # f > max f: nothing
@@ -285,3 +313,36 @@ def test_params_match_signatures():
         assert kw == [p.name for p in params]
         for p in params:
             assert sig[p.name].default == p.default
+
+
+# --------------------------------------------------------------- benchmark truth
+def _folded_grid(m=21):
+    """An L-shaped strip (floor z = 0 and wall x = 0 meeting at 90° along the
+    y axis), a regular m × m grid triangulated with one orientation."""
+    u = np.linspace(-1.0, 1.0, m)
+    y = np.linspace(0.0, 1.0, (m + 1) // 2)
+    uu, yy = np.meshgrid(u, y, indexing="ij")
+    V = np.c_[np.maximum(uu, 0).ravel(), yy.ravel(), np.maximum(-uu, 0).ravel()]
+    ny = len(y)
+    i, j = np.meshgrid(np.arange(m - 1), np.arange(ny - 1), indexing="ij")
+    a = (i * ny + j).ravel()
+    b, c, d = a + ny, a + ny + 1, a + 1
+    Fc = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    return V, Fc
+
+
+def test_edge_distance_h_matches_the_mesh_vertex_truth():
+    from baselines.bench_features import edge_distance_h
+    from baselines.meshes import mesh_sample
+
+    V, Fc = _folded_grid()
+    s = mesh_sample(V, Fc)
+    assert s.sharp.sum() == 11                      # the row on the fold
+    d = edge_distance_h(s)
+    np.testing.assert_allclose(d[s.sharp], 0.0, atol=1e-12)
+    # the next rows lie one grid step (0.1) away, in units of h
+    assert np.allclose(np.sort(np.unique(np.round(d * s.h, 9)))[:3], [0.0, 0.1, 0.2])
+    np.testing.assert_array_equal(d <= 0.25 * 0.1 / s.h, s.sharp)
+    # synthetic shapes: their own exact edge distance, in h
+    cube = make_shape("cube", n=3000, seed=0)
+    np.testing.assert_allclose(edge_distance_h(cube), cube.extra["edge_distance"] / cube.h)
