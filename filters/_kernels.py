@@ -35,8 +35,13 @@ HAVE_NUMBA = numba is not None
 #: reference implementations instead (the tests compare both)
 ENABLED = HAVE_NUMBA
 
-#: signals per parallel work item (scratch arrays are allocated once per block)
+#: signals per work item (scratch arrays are allocated once per block)
 _BLOCK = 2048
+#: ridge added to the diagonal of the active Gram matrices
+_RIDGE = 1e-12
+#: Cholesky pivot under which a joining atom counts as linearly dependent on
+#: the active ones (unit atoms: 1 − cos² of its angle to their span)
+_DEGENERATE = 1e-10
 
 
 
@@ -112,7 +117,7 @@ if HAVE_NUMBA:
         for _ in range(max_steps):
             for k in range(na):
                 s[k] = 1.0 if c[act[k]] >= 0.0 else -1.0
-            _chol_solve(G, act, na, 1e-12, M, s, w)
+            _chol_solve(G, act, na, _RIDGE, M, s, w)
             for j in range(S):
                 a[j] = 0.0
             for k in range(na):
@@ -170,6 +175,20 @@ if HAVE_NUMBA:
                 act[na] = 0
                 beta[na] = 0.0
             else:
+                # an atom in the span of the active ones (a duplicate, say)
+                # cannot join: its Cholesky pivot G_jj − ‖M⁻¹G_Aj‖² vanishes.
+                # Its correlation stays tied with theirs, so the path goes on
+                # without it; it is excluded for good (not an event).
+                piv = G[jj, jj] + _RIDGE
+                for p in range(na):
+                    v = G[act[p], jj]
+                    for r in range(p):
+                        v -= M[p, r] * s[r]
+                    s[p] = v / M[p, p]
+                    piv -= s[p] * s[p]
+                if piv < _DEGENERATE:
+                    pen[jj] = np.inf
+                    continue
                 if last_drop >= 0:
                     pen[last_drop] = 0.0
                 last_drop = -1

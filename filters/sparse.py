@@ -325,6 +325,19 @@ def _lars_chunk(X, D, alpha, K, max_steps, cand=None):
         live[rows[end]] = False
         drop = ~end & (g_drop <= g_join)
         join = ~end & ~drop
+        js = np.flatnonzero(join)
+        if js.size:
+            # an atom in the span of the active ones (a duplicate, say) cannot
+            # join: its pivot 1 − g_Aᵀ G_AA⁻¹ g_A vanishes.  Its correlation
+            # stays tied with theirs, so the path goes on without it; it is
+            # blocked for good and the step is not an event.
+            gA = G[a_idx[js], jj[js][:, None]] * valid[js]
+            z = np.linalg.solve(Gs[js], gA[:, :, None])[:, :, 0]
+            piv = G[jj[js], jj[js]] + 1e-12 - np.einsum("ck,ck->c", gA, z)
+            bad = js[piv < 1e-10]
+            if bad.size:
+                blocked_all[rows[bad], pj[bad]] = True
+                join[bad] = False
         r = rows[join]
         ld = last_drop[r]
         has = ld >= 0
@@ -423,7 +436,10 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
     again with the whole dictionary, so the answer does not depend on the
     screening.  Matches scikit-learn's
     ``Lasso`` (coordinate descent, ``alpha/d`` in its scaling) to solver
-    precision (tested).
+    precision (tested).  Degenerate dictionaries are handled: an atom equal
+    (up to sign) to an earlier one gets no coefficient, and an atom in the
+    span of the active ones does not join the active set (its Cholesky pivot
+    vanishes).
     """
     func = "lasso_lars"
     X = _as_signals(X, func)
@@ -431,7 +447,13 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
     D = _as_dictionary(D, d, func)
     S = D.shape[0]
     alpha = check_param(alpha, func=func, name="alpha", kind=float, low=0.0, closed="neither")
-    K = min(d, S)
+    # an atom equal to an earlier one up to sign adds nothing to the Lasso
+    # (the earlier one can carry its coefficient) and would tie with it along
+    # the whole path: it is left out
+    cos = np.abs(D @ D.T)
+    atoms = np.flatnonzero(~np.triu(cos > 1.0 - 1e-9, k=1).any(axis=0))
+    Du = D[atoms] if atoms.size < S else D
+    K = min(d, len(Du))
     if max_steps is None:
         max_steps = 8 * K
     max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
@@ -439,7 +461,8 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
     with _single_blas():
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
-            r, c_, v = _compact(s0, *_lasso_chunk(X[s0:e], D, alpha, K, max_steps))
+            act, beta = _lasso_chunk(X[s0:e], Du, alpha, K, max_steps)
+            r, c_, v = _compact(s0, atoms[act], beta)
             rows.append(r)
             cols.append(c_)
             vals.append(v)

@@ -166,3 +166,26 @@ def test_compiled_and_numpy_paths_agree(monkeypatch):
                         sparse.lasso_lars(X, k.dictionary, alpha=0.2).toarray())
     for a, b in zip(out[True], out[False]):
         np.testing.assert_allclose(a, b, atol=1e-8)
+
+
+def test_lasso_lars_degenerate_dictionary(solver_path):
+    """Duplicate atoms (also with flipped sign) and an atom in the span of two
+    others: the codes still satisfy the Lasso optimality conditions and reach
+    scikit-learn's objective; duplicates get no coefficient."""
+    rng = np.random.default_rng(0)
+    D = rng.standard_normal((30, 7))
+    D[5], D[9], D[12] = D[3], -D[3], D[1] + D[2]
+    D /= np.linalg.norm(D, axis=1)[:, None]
+    X = rng.standard_normal((300, 7))
+    alpha = 0.1
+    codes = sparse.lasso_lars(X, D, alpha=alpha).toarray()
+    R = X - codes @ D
+    assert np.abs(R @ D.T).max() <= alpha * (1 + 1e-7)
+    assert not codes[:, [5, 9]].any()
+    ours = 0.5 * (R ** 2).sum(axis=1) + alpha * np.abs(codes).sum(axis=1)
+    model = Lasso(alpha=alpha / 7, fit_intercept=False, tol=1e-12, max_iter=100_000)
+    for i in range(0, 300, 30):
+        model.fit(D.T, X[i])
+        r = X[i] - D.T @ model.coef_
+        ref = 0.5 * r @ r + alpha * np.abs(model.coef_).sum()
+        assert ours[i] <= ref + 1e-9
