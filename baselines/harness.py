@@ -525,13 +525,14 @@ def environment_info() -> dict:
     ``cpu_affinity`` (cores usable by this process), ``ram_gb``, ``load_avg``
     (1/5/15-min load averages: timings on a shared machine are only comparable
     at similar load), ``python``,
-    ``versions`` (numpy, scipy, scikit-learn, pymeshlab, cgal, matplotlib;
+    ``versions`` (numpy, scipy, scikit-learn, pymeshlab, cgal, matplotlib, numba;
     None when not installed) and ``timestamp_utc``.
     """
     from importlib import metadata
 
     versions = {}
-    for dist in ("numpy", "scipy", "scikit-learn", "pymeshlab", "cgal", "matplotlib"):
+    for dist in ("numpy", "scipy", "scikit-learn", "pymeshlab", "cgal", "matplotlib",
+                 "numba"):
         try:
             versions[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
