@@ -13,7 +13,9 @@ minimise the energy (4.5)
 
 over the radius-r neighbourhood N_g(p_i) (‖·‖ is the thesis' component-wise ℓ1
 norm with ``tv_norm="l1"``, the rotation-invariant ℓ2 norm by default), then
-moves p_i onto its robust plane.
+moves p_i onto its robust plane.  By default a final step (not in the thesis)
+projects every input point onto an algebraic sphere fitted with the filtered
+normals (see Notes of :func:`denoise_l1_tv`).
 Algorithm 4.1: n⁰ by the reweighted eigen-iteration (4.6)-(4.9); then, per outer
 iteration, an inner loop alternating one proximal-gradient normal step
 (4.10)-(4.12) and the IRLS weighted-median τ step (4.14); the bounded position
@@ -61,6 +63,10 @@ RADIUS_FACTOR = 1.5
 CURVED_SAG = 0.05
 #: IRLS sub-iterations of the τ step (4.14) per inner iteration
 TAU_IRLS = 3
+#: neighbours of the plain PCA normals that seed the final sphere fit on curved parts
+FIT_PCA_K = 16
+#: Newton steps of the projection onto the fitted algebraic sphere
+PROJ_STEPS = 3
 
 PARAMS = (
     Param("lambda_tv", float, 0.4, "Weight λ of the L1 (TV) normal regulariser (4.5)",
@@ -106,6 +112,10 @@ PARAMS = (
           advanced=True),
     Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=4,
           high=512, unit="count", advanced=True),
+    Param("final_projection", bool, True, "Finish by projecting each input point onto "
+          "an algebraic sphere fitted to its neighbours with the filtered normals "
+          "(plain PCA normals on curved parts), weighted by θ and normal similarity; "
+          "False = thesis (points end where (4.15) left them)", advanced=True),
     Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
           low=0, optional=True, advanced=True),
 )
@@ -488,6 +498,78 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
     return energy, new_n, new_t, (vnorm, offset, curv) if vn else None
 
 
+def _pca_normals(ctx: _Ctx, k: int) -> np.ndarray:
+    """Plain (unweighted) PCA normals over the first ``k`` neighbours of the rows."""
+    out = np.empty((len(ctx.x), 3))  # noqa: NPY-empty -- every chunk writes its rows
+
+    def kernel(s, e):
+        nb = ctx.x[ctx.idx[s:e, :k]]
+        dc = nb - nb.mean(axis=1, keepdims=True)
+        cov = [np.einsum("ck,ck->c", dc[:, :, a], dc[:, :, b])
+               for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+        out[s:e] = _smallest_eigvec(*cov)
+
+    _run_chunks(kernel, len(ctx.x))
+    return out
+
+
+def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
+    """Project every point of ``ctx.x`` onto an algebraic sphere fitted to its
+    neighbours (positions ``ctx.x``, normals ``fit_n``), Notes "final projection".
+
+    Weights: θ (σ_d, radius r) times the normal similarity w_ij of (4.4) between
+    each neighbour's normal and the point's own, so the fit stays on one side of
+    an edge.  The sphere s(x) = u₀ + uᵀx + u₄‖x‖² (x relative to p_i) fits
+    positions and normals in the least-squares sense of algebraic point set
+    surfaces (position and gradient terms weighted equally); p_i moves to s = 0
+    by Newton steps along ∇s.  Returns ``(offset (n, 3), ok (n,))``; ``ok`` is
+    False where the fit is degenerate.
+    """
+    n = len(ctx.x)
+    off = np.zeros((n, 3))
+    ok = np.zeros(n, dtype=bool)
+    ft = np.ascontiguousarray(fit_n.T, dtype=F32)
+
+    def kernel(s, e):
+        d, d2, _, theta = _geometry(ctx, s, e)
+        q = [-da for da in d]  # q_j = p_j − p_i
+        idx = ctx.idx[s:e]
+        ri = fit_n[s:e]
+        nb = [np.take(ft[a], idx) for a in range(3)]
+        dots = _dot(nb, ri)
+        sgn = np.where(dots < 0, F32(-1.0), F32(1.0))
+        nb = [nb[a] * sgn for a in range(3)]
+        w = np.square((1.0 - np.abs(dots)) * F32(1.0 / (1.0 - ctx.cos_n)))
+        np.negative(w, out=w)
+        np.exp(w, out=w)
+        w *= theta
+        s0 = _rowsum(w)
+        good = s0 > 0
+        inv = 1.0 / np.where(good, s0, 1.0)
+        mq = np.stack([_rowsum(w * q[a]) for a in range(3)], axis=1) * inv[:, None]
+        mn = np.stack([_rowsum(w * nb[a]) for a in range(3)], axis=1) * inv[:, None]
+        qq = _rowsum(w * d2) * inv
+        qn = _rowsum(w * (q[0] * nb[0] + q[1] * nb[1] + q[2] * nb[2])) * inv
+        den = qq - np.einsum("ij,ij->i", mq, mq)
+        flat = den <= 1e-9 * np.maximum(qq, 1e-300)
+        u4 = np.where(flat, 0.0,
+                      0.5 * (qn - np.einsum("ij,ij->i", mq, mn)) / np.where(flat, 1.0, den))
+        u = mn - 2.0 * u4[:, None] * mq
+        u0 = -np.einsum("ij,ij->i", u, mq) - u4 * qq
+        x = np.zeros((e - s, 3))
+        for _ in range(PROJ_STEPS):
+            g = u + 2.0 * u4[:, None] * x
+            f = u0 + np.einsum("ij,ij->i", u, x) + u4 * np.einsum("ij,ij->i", x, x)
+            g2 = np.einsum("ij,ij->i", g, g)
+            x -= (f / np.where(g2 > 1e-24, g2, np.inf))[:, None] * g
+        good &= np.isfinite(x).all(axis=1)
+        off[s:e] = np.where(good[:, None], x, 0.0)
+        ok[s:e] = good
+
+    _run_chunks(kernel, n)
+    return off, ok
+
+
 def _smooth_curvature(ctx: _Ctx, normals: np.ndarray, curv: np.ndarray) -> np.ndarray:
     """θ-weighted mean over N_g(p_i) of the curvatures c_j of the fits
     h ≈ a + cρ², each sign-aligned to n_i (c flips with the normal's sign)."""
@@ -589,6 +671,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
                   tol: float = 1e-3,
                   edge_correction: bool = False, curvature_offset: bool = True,
                   tv_norm: str = "l2", k_max: int = 32,
+                  final_projection: bool = True,
                   seed: int | None = None) -> DenoiseResult:
     """Denoise a point cloud, preserving sharp edges (thesis ch. 4, Algorithm 4.1).
 
@@ -649,6 +732,10 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     k_max : int, default=32
         Largest number of neighbours kept in N_g (the radius neighbourhood is
         truncated to the k_max nearest).
+    final_projection : bool, default=True
+        Finish by projecting every input point onto an algebraic sphere fitted
+        to its neighbours with the filtered normals (Notes); False ends with the
+        positions of the last update (4.15), as in the thesis.
     seed : int, optional
         Accepted for a uniform filter API; the filter is deterministic.
 
@@ -776,6 +863,34 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
       dB, MAD up to 11°); restoring the tangential part of the input
       displacement (no change: the drift is along the normal); freezing all
       non-edge points (cube 0.3h −3 dB).
+    * Final projection (``final_projection``, default on; not in the thesis):
+      after the outer iterations each *input* point is projected once onto an
+      algebraic sphere s(x) = u₀ + uᵀx + u₄‖x‖² fitted to its input neighbours
+      (within r, weights θ times the normal similarity w_ij of (4.4), so the fit
+      stays on one side of an edge) with the closed-form position + normal fit
+      of algebraic point set surfaces; 3 Newton steps along ∇s. The neighbour
+      normals of the fit are the filter's L1-TV normals, except on the points
+      frozen as curved (``curved_iter``), where plain 16-NN PCA normals are
+      used (the piecewise-constant TV normals bias a sphere on smooth curved
+      parts). The output normals stay the L1-TV normals. Moves beyond ε or
+      degenerate fits keep the iterated position. Measured on all 64 benchmark
+      cases (6000 points): mean SNR 42.24 → 43.33 dB (every model gains
+      0.8-1.5 dB; cube 43.9 → 44.7, bunny 41.5 → 42.5), MAD of re-estimated
+      PCA normals 9.24 → 8.91°, own-normal MAD unchanged; ~10 % more time.
+      Tried and dropped (means over cube, fandisk, trim-star, rocker arm,
+      bunny, 8 conditions each): the sphere's gradient as output normal on the
+      frozen points (bunny 9.98 → 9.70°, rocker arm 9.24 → 9.09°, but cube
+      4.44 → 4.62°, trim-star 8.88 → 9.34°); the exact MLS gradient (with the
+      derivative of the weights, as MeshLab's APSS "accurate normal") of a
+      PCA-seeded sphere with compact weights (1 − d²/r²)⁴: applied to every
+      point it reaches 7.5° on the bunny and 7.9° on the rocker arm (normal
+      0.2h), level with the tuned APSS/RIMLS, but it is 6.4° against 3.0° for
+      the L1-TV normals on the cube's faces, and no per-point selector tried
+      (V_n, frozen set, sphere sag, angle between the two normals) kept the CAD
+      gains: overall MAD 8.07 → 8.11-9.32°; PCA normals in the fit on all
+      non-edge points (cube MAD 6.2°); wider fits (k = 64, σ = 3-4h: SNR −0.7
+      to −1.5 dB on the curved models); projecting the iterated positions
+      instead of the input (SNR −0.5 dB); iterating the projection (no gain).
     * Edge correction (4.18)-(4.19): the "opposite surface" point is the nearest
       neighbour whose normal differs from n_i by more than σ_n; all edge points
       are corrected from the same (pre-correction) positions.
@@ -803,7 +918,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
         inner_iter=inner_iter,
         init_iter=init_iter, tol=tol, edge_correction=edge_correction,
         curvature_offset=curvature_offset, tv_norm=tv_norm,
-        k_max=k_max, seed=seed), func)
+        k_max=k_max, final_projection=final_projection, seed=seed), func)
     x, hint, centre, h, idx, perm = _prepare(points, normals, p, func)
     n = len(x)
     x0 = x.copy()
@@ -847,6 +962,19 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     if frozen.any():  # frozen points keep the normal of their last move
         same = np.einsum("ij,ij->i", frozen_n, nrm) >= 0
         nrm = np.where(frozen[:, None], np.where(same[:, None], frozen_n, -frozen_n), nrm)
+    if p["final_projection"]:
+        # final projection of the input points onto algebraic spheres (Notes)
+        cin = _context(x0, idx, p)
+        cin.refresh()
+        fit_n = nrm
+        if frozen.any():  # curved parts: plain PCA normals seed the fit
+            pca = _pca_normals(cin, min(FIT_PCA_K, idx.shape[1]))
+            fit_n = np.where(frozen[:, None], pca, nrm)
+        off, ok = _sphere_project(cin, fit_n)
+        ok &= np.square(off).sum(axis=1) <= eps2
+        if p["edge_correction"]:  # corrected edge points keep (4.18)-(4.19)
+            ok &= vn >= p["edge_threshold"]
+        ctx.x[ok] = x0[ok] + off[ok]
     if normals is None:
         k = min(MST_K, idx.shape[1] - 1)
         nrm = orient_normals_mst(ctx.x, nrm, k=k, neighbors=idx[:, 1:k + 1])

@@ -218,8 +218,9 @@ def test_registry_filter_on_meshset(noisy_cube):
 
 def test_edge_correction_moves_edge_points_within_rho(noisy_cube):
     s, noisy = noisy_cube
-    off = denoise_l1_tv(noisy, n_iter=1)
-    on = denoise_l1_tv(noisy, n_iter=1, edge_correction=True)
+    # the correction as printed, without the final sphere projection
+    off = denoise_l1_tv(noisy, n_iter=1, final_projection=False)
+    on = denoise_l1_tv(noisy, n_iter=1, edge_correction=True, final_projection=False)
     assert off.n_corrected == 0
     assert on.n_corrected > 0
     # the correction acts near the edges only
@@ -229,6 +230,29 @@ def test_edge_correction_moves_edge_points_within_rho(noisy_cube):
     assert moved.sum() == on.n_corrected
     assert step.max() < 0.7 * on.h  # |d| < ρh (4.19)
     assert np.median(near[moved]) < 2.0
+    # with the final projection, corrected edge points keep their corrected place
+    both = denoise_l1_tv(noisy, n_iter=1, edge_correction=True)
+    assert both.n_corrected == on.n_corrected
+    assert np.allclose(both.points[both.edge_mask], on.points[on.edge_mask])
+
+
+def test_final_projection_removes_shrinkage_on_a_sphere():
+    s = make_shape("sphere", n=4000, seed=5)
+    noisy = add_noise(s.points, s.normals, sigma=0.3, h=s.h, kind="normal", seed=6)
+    c = s.points.mean(axis=0)
+    radius = np.linalg.norm(s.points - c, axis=1).mean()
+
+    def err(p):
+        return (np.linalg.norm(p - c, axis=1) - radius) / s.h
+
+    on = denoise_l1_tv(noisy)
+    off = denoise_l1_tv(noisy, final_projection=False)
+    assert np.abs(err(on.points)).mean() < 0.45 * np.abs(err(noisy)).mean()
+    assert np.abs(err(on.points)).mean() < 0.85 * np.abs(err(off.points)).mean()
+    # plane projections sit inside a convex surface; the sphere fit does not
+    assert abs(err(on.points).mean()) < 0.5 * abs(err(off.points).mean())
+    # normals are the filter's own: the projection does not change them
+    assert np.allclose(on.normals, off.normals)
 
 
 def test_normals_consistently_oriented_without_hint():
