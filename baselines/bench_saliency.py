@@ -11,6 +11,11 @@ Ground truth
     * "bumpy_plane": ``extra["salient"]`` = within 2σ of a bump or dent centre.
 Conditions: clean; 0.3 h Gaussian noise along the normal ("0.3h"); the thesis'
 Fig. 5.12 setting, 30 % random noise (σ = 0.3 h in a random direction).
+A sensitivity table repeats the CAD AUCs with 2 h and 3 h bands around the same
+edges (side information; the benchmark's truth stays the 1 h band).
+
+Ours is run with its defaults (quantile accumulation), with the thesis' mean
+accumulation, and with the thesis' product measure (5.7).
 
 Baselines: surface variation λ0/Σλ of 16-NN PCA (thesis 2.5); curvature
 magnitude √(k1²+k2²) of the same radius-3h quadric fit the filter uses; |K|;
@@ -46,8 +51,15 @@ CONDITIONS = (("clean", None, 0.0), ("0.3h", "normal", 0.3),
 UNVERIFIED = ("armadillo", "bimba", "blade", "bunny", "bust", "fandisk", "gargoyle",
               "horse", "maxplanck")
 THESIS_SECONDS_15K = 81.7
-METHODS = ("ours", "ours (thesis 5.7, mdl)", "surface variation", "curvature magnitude",
-           "|K| (Gaussian)", "SDBS global score")
+OURS = ("ours", "ours (mean accumulation)", "ours (thesis 5.7, mdl)")
+BASELINES = ("surface variation", "curvature magnitude", "|K| (Gaussian)",
+             "SDBS global score")
+METHODS = OURS + BASELINES
+#: half-widths (× h) of the sensitivity check of the CAD ground-truth band; the
+#: official truth stays the 1 h band of ``Sample.sharp``
+BANDS = (1.0, 2.0, 3.0)
+BAND_METHODS = ("ours", "ours (mean accumulation)", "surface variation",
+                "curvature magnitude")
 
 
 # ----------------------------------------------------------------------------------------
@@ -149,13 +161,21 @@ def _evaluate(name: str, n: int, seed: int, conditions, img_dir: Path | None
         t0 = time.perf_counter()
         ours = saliency_sparse_mdl(pts)
         dt = time.perf_counter() - t0
+        mean_acc = saliency_sparse_mdl(pts, accumulation="mean")
         mdl = saliency_sparse_mdl(pts, measure="mdl")
-        scores = {"ours": ours.saliency, "ours (thesis 5.7, mdl)": mdl.saliency}
+        scores = {"ours": ours.saliency, "ours (mean accumulation)": mean_acc.saliency,
+                  "ours (thesis 5.7, mdl)": mdl.saliency}
         scores.update(baseline_scores(pts))
         row = {"shape": name, "condition": cond, "n": len(pts),
                "positives": int(truth.sum()), "seconds_ours": dt}
         for m in METHODS:
             row[m] = roc_auc(scores[m], truth) if m in scores else None
+        if name in CAD:
+            # sensitivity only: AUC against wider bands around the same sharp edges
+            ed = sample.extra["edge_distance"] / sample.h
+            row["band_auc"] = {f"{w:g}h": {m: roc_auc(scores[m], ed <= w)
+                                           for m in BAND_METHODS}
+                               for w in BANDS}
         rows.append(row)
         pics_ours.append((f"ours, {cond} (AUC {row['ours']:.2f})", pts, ours.saliency))
         cm = scores["curvature magnitude"]
@@ -181,9 +201,11 @@ def _unverified(max_models: int | None = None) -> list[dict]:
             continue
         ref = s.extra["vertex_saliency"]
         ours = saliency_sparse_mdl(s.points).saliency
+        mean_acc = saliency_sparse_mdl(s.points, accumulation="mean").saliency
         base = baseline_scores(s.points)
         row = {"model": name, "n": len(s.points)}
-        for m, v in [("ours", ours)] + list(base.items()):
+        for m, v in [("ours", ours), ("ours (mean accumulation)", mean_acc)] + \
+                list(base.items()):
             row[m] = float(np.corrcoef(v, ref)[0, 1])
         rows.append(row)
     return rows
@@ -246,10 +268,13 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "Noise: `0.3h` = Gaussian σ = 0.3 h along the normal; `30% random` = the "
           "thesis' Fig. 5.12 setting, σ = 0.3 h in a random direction.", "",
           "Methods: **ours** = `saliency_sparse_mdl` defaults (radius 3 h, 8 rays, "
-          "λ = 0.9, residual measure); **ours (thesis 5.7, mdl)** = the thesis' product "
-          "N(‖α‖₀)·N(residual); surface variation = λ0/Σλ of 16-NN PCA; curvature "
+          "λ = 0.9, residual measure, S_T accumulated as the 10 % quantile over the "
+          "overlapping neighbourhoods); **ours (mean accumulation)** = the same with the "
+          "thesis' mean accumulation (the previous default); **ours (thesis 5.7, mdl)** "
+          "= the thesis' product N(‖α‖₀)·N(residual), default accumulation; surface "
+          "variation = λ0/Σλ of 16-NN PCA; curvature "
           "magnitude = √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself "
-          "uses; SDBS global score = Sf (6.10) of `simplify_sdbs` (ch. 6, defaults) "
+          "uses; SDBS global score = Sf (6.10) of `simplify_sdbs` (ch. 6, defaults)"
           + ("." if sdbs else "— not available (`filters.simplify` not importable)."),
           "",
           _auc_table(rows), "",
@@ -264,32 +289,61 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
            f"{targets['cad_0.3h_min_auc']:.3f}); above every simple baseline — see the "
            "bold entries: where a baseline is bold, the target is missed on that row.",
            ""]
-    beaten = sorted({m for c in summary for m in METHODS[2:]
+    beaten = sorted({m for c in summary for m in BASELINES
                      if summary[c][m] is not None and summary[c]["ours"] is not None
                      and summary[c][m] > summary[c]["ours"]})
     smooth = [r for r in rows if r["shape"] in SMOOTH]
-    smooth_wins = all(r["ours"] >= max(r[m] for m in METHODS[2:] if r.get(m) is not None)
+    smooth_wins = all(r["ours"] >= max(r[m] for m in BASELINES if r.get(m) is not None)
                       for r in smooth)
     smooth_text = ("above every baseline in every noise setting." if smooth_wins
                    else "not above every baseline.")
+    gain = {c: summary[c]["ours"] - summary[c]["ours (mean accumulation)"]
+            for c in summary if summary[c]["ours (mean accumulation)"] is not None}
     md += ["Findings (computed from the tables above):", "",
            "* CAD baselines with a higher mean AUC than ours in at least one noise "
-           "setting: " + (", ".join(beaten) if beaten else "none") + ".  On sharp "
-           "edges a 1 h wide ground-truth band favours point-wise curvature; our score "
-           "is a mean over neighbourhoods of radius 3 h coded against neighbourhoods "
-           "3 h away, so it is spatially smoother (see the heat maps).",
+           "setting: " + (", ".join(beaten) if beaten else "none") + ".  A straight "
+           "sharp edge is not distinct from its surroundings along the edge: the rays "
+           "along it end on neighbourhoods with the same descriptor, so the Lasso codes "
+           "an edge neighbourhood almost as well as a flat one, and the residual rises "
+           "only through the shrinkage (‖F̄‖ is shorter there) and the diversity of the "
+           "atoms across the edge.  S_T is therefore high on a plateau about 2r wide "
+           "around every edge, not on the 1 h band; point-wise curvature of a fit "
+           "centred on the edge peaks on the band itself.",
+           "* Accumulating S_T by a low quantile instead of the mean (a point is "
+           "salient when nearly all neighbourhoods containing it are) narrows that "
+           "plateau: mean CAD AUC change vs the mean accumulation: " +
+           ", ".join(f"{c} {gain[c]:+.3f}" for c in gain) + ".",
            "* Bumps on a plane: ours is " + smooth_text + " Point-wise curvature and "
            "surface variation collapse under noise there.",
            "* The thesis' product with ‖α‖₀ (5.7) ranks below the residual alone: "
            "‖α‖₀ is larger on flat regions, where the centre lies between "
            "near-duplicate atoms, than on features (docstring Notes of "
            "`saliency_sparse_mdl`).", ""]
+    banded = [r for r in cad if "band_auc" in r]
+    if banded:
+        md += ["Sensitivity of the CAD ranking to the ground-truth band (NOT the "
+               "benchmark's truth, which stays the 1 h band): mean AUC over the CAD "
+               "solids and all noise settings when the positives are the points within "
+               "w h of a sharp edge.", ""]
+        md.append(harness.markdown_table(
+            ["band half-width"] + list(BAND_METHODS),
+            [[w] + [float(np.mean([r["band_auc"][w][m] for r in banded]))
+                    for m in BAND_METHODS] for w in banded[0]["band_auc"]],
+            best={1 + i: "max" for i in range(len(BAND_METHODS))}, fmt="{:.3f}"))
+        md.append("")
     if unver:
         md += ["## Side signal: per-face maps of unknown origin", "",
                "Pearson correlation of each score with the vertex average of the "
                "per-face values in `saliency_unverified/` (provenance unknown, NOT "
                "ground truth; shown only as a side signal).", ""]
         ms = [m for m in METHODS if m in unver[0]]
+        mq = float(np.mean([r["ours"] for r in unver]))
+        mm = float(np.mean([r["ours (mean accumulation)"] for r in unver]))
+        md += [f"Mean correlation over the models: ours {mq:.3f}, ours (mean "
+               f"accumulation) {mm:.3f}.  These maps are smooth; the quantile "
+               "accumulation concentrates the score on the features themselves, the "
+               "mean spreads it over about r (the trade-off of the default; "
+               "`accumulation=\"mean\"` gives the thesis' accumulation).", ""]
         md.append(harness.markdown_table(["model", "n"] + ms,
                                          [[r["model"], r["n"]] + [r[m] for m in ms]
                                           for r in unver], fmt="{:.3f}"))

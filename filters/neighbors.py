@@ -198,9 +198,32 @@ def pca_normals(points: np.ndarray, k: int = 16, *, tree: cKDTree | None = None,
     return normals
 
 
+def normal_agreement(points: np.ndarray, normals: np.ndarray, i: np.ndarray,
+                     j: np.ndarray) -> np.ndarray:
+    """Signed agreement of the unoriented normals of points ``i`` and ``j`` (index
+    arrays of one shape): the plain n_i·n_j, or the mirrored
+    (n_i − 2(n_i·e)e)·n_j with e the unit chord p_j − p_i, whichever is larger
+    in magnitude.
+
+    The mirror image of n_i in the plane bisecting the chord is the normal a
+    circle through both points would have at p_j (the "consistent osculating
+    circle" idea of König & Gumhold 2009), so it stays near +1 across a sharp
+    crease where the plain product is near 0 (90° edge) or even negative (the
+    thin tips of a star), i.e. where Hoppe's rule flips a face.  On a smooth
+    patch the plain product is near 1 and wins."""
+    ni, nj = normals[i], normals[j]
+    e = points[j] - points[i]
+    ee = np.einsum("...d,...d->...", e, e)
+    plain = np.einsum("...d,...d->...", ni, nj)
+    a = np.einsum("...d,...d->...", ni, e)
+    b = np.einsum("...d,...d->...", nj, e)
+    mirror = plain - 2.0 * a * b / np.where(ee > 0.0, ee, 1.0)
+    return np.where(np.abs(mirror) > np.abs(plain), mirror, plain)
+
+
 def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
-                       tree: cKDTree | None = None, neighbors: np.ndarray | None = None
-                       ) -> np.ndarray:
+                       tree: cKDTree | None = None, neighbors: np.ndarray | None = None,
+                       mirror: bool = False) -> np.ndarray:
     """Consistently orient ``normals`` by propagation along a minimum spanning
     tree of the k-NN graph with edge cost 1 − |n_i·n_j| (Hoppe et al. 1992).
 
@@ -216,6 +239,12 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     neighbors : (n, m) int, optional
         A neighbour array a filter already holds, self EXCLUDED; its first
         ``k`` columns are used and no new query is made.
+    mirror : bool, default=False
+        Judge two neighbours by :func:`normal_agreement` (the plain product or
+        the chord-mirrored one, whichever agrees more strongly) instead of
+        n_i·n_j, for edge costs and signs alike: Hoppe's plain rule flips whole
+        faces of solids with sharp thin tips (a star prism: 26 of 36 seeded
+        runs with a flipped face, 7 of 36 with the mirror rule).
 
     Returns
     -------
@@ -244,7 +273,10 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
         j = nb[s:e]
-        dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[j]))
+        if mirror:
+            dots = np.abs(normal_agreement(points, normals, rows[s:e, None], j))
+        else:
+            dots = np.abs(np.einsum("cd,ckd->ck", normals[s:e], normals[j]))
         cost[s:e] = 1.0 - dots + 1e-6  # strictly positive so every edge is stored
         mutual = (nb[j] == rows[s:e, None, None]).any(axis=2)
         keep[s:e] = (rows[s:e, None] < j) | ~mutual
@@ -270,7 +302,9 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     # product of rel along its path to the root, times the root's own sign
     is_root = np.zeros(n, dtype=bool)
     is_root[roots] = True
-    rel = np.where(np.einsum("ij,ij->i", normals, normals[parent]) < 0, -1.0, 1.0)
+    agree = (normal_agreement(points, normals, rows, parent) if mirror
+             else np.einsum("ij,ij->i", normals, normals[parent]))
+    rel = np.where(agree < 0, -1.0, 1.0)
     rel[is_root] = 1.0
     acc, ptr = rel.copy(), parent.copy()  # acc: product of rel over [i, ptr[i])
     live = ~is_root[ptr]

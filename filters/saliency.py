@@ -17,8 +17,9 @@ Per point p_i (neighbourhood N_g(p_i) = points within radius r):
    once by :func:`filters.lasso_batched.lasso_batched`;
 5. neighbourhood saliency S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) with
    ``measure="mdl"``, or the residual term N(‖F̄_i − Dα‖₁) alone (the default,
-   see the function's Notes), accumulated (mean) over the overlapping
-   neighbourhoods that contain each point.
+   see the function's Notes), accumulated over the overlapping neighbourhoods
+   that contain each point: by default their 10 % quantile (a robust minimum,
+   see Notes), or their mean (``accumulation="mean"``).
 
 Everything is vectorised over points and chunked; one k-NN query serves every
 step (plus the one of the MST normal orientation when normals are not given).
@@ -57,6 +58,13 @@ PARAMS = (
     Param("measure", str, "residual", "Neighbourhood saliency: 'mdl' = "
           "N(‖α‖₀)·N(residual) (5.7, thesis); 'residual' = N(residual) alone (see Notes)",
           choices=("mdl", "residual")),
+    Param("accumulation", str, "quantile", "How S_T is accumulated over the overlapping "
+          "neighbourhoods that contain a point: 'quantile' = their acc_quantile quantile "
+          "(a robust minimum, sharper; see Notes), 'mean' = their mean",
+          choices=("quantile", "mean")),
+    Param("acc_quantile", float, 0.1, "Quantile used by accumulation='quantile' "
+          "(0 = minimum, 0.5 = median)", low=0.0, high=1.0, unit="fraction",
+          advanced=True),
     Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=8,
           high=512, unit="count", advanced=True),
     Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
@@ -128,6 +136,22 @@ class _Hood:
             g = values[self.idx[s:e]].reshape(e - s, w.shape[1], -1)
             m = np.matmul(w[:, None, :], g)[:, 0, :] / self.count[s:e, None]
             out[s:e] = m.reshape((e - s,) + values.shape[1:])
+        return out
+
+    def quantile(self, values: np.ndarray, q: float) -> np.ndarray:
+        """Quantile ``q`` of ``values`` (n,) over every neighbourhood (linear
+        interpolation between order statistics, as ``np.quantile``)."""
+        out = np.zeros(len(self.idx))
+        for s in range(0, len(self.idx), CHUNK):
+            e = min(len(self.idx), s + CHUNK)
+            v = np.where(self.valid(s, e), values[self.idx[s:e]], np.inf)
+            v.sort(axis=1)
+            pos = q * (self.count[s:e] - 1.0)
+            j = np.floor(pos).astype(np.int64)
+            j1 = np.minimum(j + 1, self.count[s:e] - 1)[:, None]
+            lo = np.take_along_axis(v, j[:, None], axis=1)[:, 0]
+            hi = np.take_along_axis(v, j1, axis=1)[:, 0]
+            out[s:e] = lo + (pos - j) * (hi - lo)
         return out
 
 
@@ -206,11 +230,16 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
 
 def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
                         k: int = 16) -> np.ndarray:
-    """MST sign propagation (Hoppe et al. 1992) on the ``k`` nearest neighbours
-    already held in ``hood``: :func:`filters.neighbors.orient_normals_mst` with
-    no new k-NN query."""
+    """Consistent normal signs by :func:`filters.neighbors.orient_normals_mst`
+    with the chord-mirror agreement (``mirror=True``) on the ``k`` nearest
+    neighbours already held in ``hood`` (no new k-NN query; neighbours beyond
+    the radius still join the graph, so a sparse region does not fall apart
+    into components).  Hoppe's plain n_i·n_j flips whole faces of solids with
+    sharp thin tips (12-45 % of the "star" normals; see the Notes of
+    :func:`saliency_sparse_mdl`)."""
     kk = min(k + 1, hood.idx.shape[1])
-    return orient_normals_mst(points, normals, k=kk - 1, neighbors=hood.idx[:, 1:kk])
+    return orient_normals_mst(points, normals, k=kk - 1, neighbors=hood.idx[:, 1:kk],
+                              mirror=True)
 
 
 def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
@@ -244,8 +273,9 @@ def _normalise(v: np.ndarray) -> np.ndarray:
 
 
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
-                        alpha: float = 0.9, measure: str = "residual", k_max: int = 32,
-                        seed: int | None = None
+                        alpha: float = 0.9, measure: str = "residual",
+                        accumulation: str = "quantile", acc_quantile: float = 0.1,
+                        k_max: int = 32, seed: int | None = None
                         ) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (thesis ch.5).
 
@@ -266,6 +296,12 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     measure : {"residual", "mdl"}, default="residual"
         Neighbourhood saliency: the coding residual N(S_I), or the thesis'
         product N(S_M)·N(S_I) of eq. (5.7) (see Notes).
+    accumulation : {"quantile", "mean"}, default="quantile"
+        How the neighbourhood saliencies are accumulated at each point: the
+        ``acc_quantile`` quantile of the S_T of the neighbourhoods containing
+        it, or their mean (see Notes).
+    acc_quantile : float, default=0.1
+        The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
         Cap on the neighbours within the radius (the nearest are kept).
     seed : int or None
@@ -298,14 +334,25 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
 
     Normals: when given they are used as they are; otherwise PCA normals of
     N_g oriented by MST propagation (Hoppe 1992) over the 16 nearest
-    neighbours (with 8 or 10, half of the "star" solid comes out flipped), each
-    connected component rooted at its highest point with its normal toward +z,
-    which is outward on closed surfaces (the convention of
-    ``filters.neighbors.orient_normals_mst``; this copy reuses the filter's
-    neighbour array instead of a second k-NN query).  Flipping every normal of
-    the cloud leaves the saliency unchanged (all inner products and norms of
-    the coding are invariant to it); a wrongly oriented patch does not: it
-    shows up as salient along its border.
+    neighbours, each connected component rooted at its highest point with its
+    normal toward +z, which is outward on closed surfaces (the convention of
+    ``filters.neighbors.orient_normals_mst``).  The thesis does not say how
+    its normals are oriented; Hoppe's rule (flip when n_i·n_j < 0) flips whole
+    faces of the "star" solid, whose tips are sharper than 90° (12 % of its
+    normals at 0.3 h noise, 45 % clean with another seed), and a flipped
+    face cancels the normal part of the descriptor along its edges.  So the
+    propagation here also admits the neighbour's normal mirrored in the
+    plane bisecting the chord p_i p_j (``filters.neighbors.normal_agreement``, after the
+    osculating-circle consistency of König & Gumhold 2009) when that agrees
+    more strongly than the plain product.  On the star (4 seeds × 6000,
+    10000, 20000 points × clean, 0.3 h, 30 % random) the runs with a face
+    flipped (>10 % of the normals) drop from 26 of 36 to 7 of 36; the other
+    benchmark shapes stay below 0.3 % flipped; the star's AUC at 0.3 h (20000
+    points) rises from 0.88 to 0.94.  It is not a cure: a face can still
+    flip where PCA normals near a thin tip are unreliable.  Flipping every normal of the cloud leaves the saliency
+    unchanged (all inner products and norms of the coding are invariant to
+    it); a wrongly oriented patch does not: it shows up as salient along its
+    border.
 
     Surroundings (§5.3.2.2): the ray ends are r·(cos θ_k, sin θ_k) in the PCA
     tangent plane; the atom is the neighbour of N_g(p_i) whose projection is
@@ -332,9 +379,24 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     against the ground truth is below 0.5 on the synthetic shapes) and it
     depends on how far the solver converged on these ill-conditioned problems;
     the residual is stable and ranks features well.
-    Accumulation: point i gets the mean of S_T over the neighbourhoods that
-    contain it; with symmetric radius neighbourhoods that is the mean over its
-    own neighbourhood (exact unless the ``k_max`` cap bites).
+    Accumulation: the neighbourhoods that contain point i are, with symmetric
+    radius neighbourhoods, those centred in its own N_g(p_i) (exact unless the
+    ``k_max`` cap bites).  The thesis accumulates S_T over them; the mean does
+    that literally (``accumulation="mean"``).  The default takes their 10 %
+    quantile instead (a robust minimum: point i is salient when nearly every
+    neighbourhood containing it is), a deviation measured in
+    reports/saliency.md.  Reason: S_T of a neighbourhood is high as soon as a
+    feature lies within about r of its centre (an atom across a sharp edge
+    makes the dictionary diverse, so the Lasso residual rises), i.e. on a
+    plateau ~2r wide, and the mean widens that plateau by another r; the low
+    quantile narrows it by r instead (a morphological erosion of the plateau),
+    so the score peaks on the feature itself.  On the benchmark this raises
+    the mean CAD-edge AUC by about 0.02 and keeps the bumps under noise;
+    ``acc_quantile`` between 0.05 and 0.2 gave the same AUCs within 0.004.
+    The price: corners no longer stand above edges (the mean keeps them
+    ~5 % higher), and the score correlates less with the smooth per-face maps
+    of unknown origin shown as a side signal in the report (mean r 0.35
+    against 0.44 with the mean accumulation).
 
     Radius: a fixed multiple of h instead of the adaptive radius of Mitra &
     Nguyen (2003) used in the thesis; h already adapts to the sampling density
@@ -367,7 +429,9 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     """
     func = "saliency_sparse_mdl"
     p = resolve_params(PARAMS, dict(radius=radius, n_rays=n_rays, alpha=alpha,
-                                    measure=measure, k_max=k_max, seed=seed), func)
+                                    measure=measure, accumulation=accumulation,
+                                    acc_quantile=acc_quantile, k_max=k_max, seed=seed),
+                       func)
     pts = as_points(points, func=func, min_points=MIN_POINTS)
     n = len(pts)
     nrm = None if normals is None else as_normals(normals, n, func=func)
@@ -417,7 +481,10 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     s_t = _normalise(resid)
     if p["measure"] == "mdl":
         s_t = _normalise(sparsity.astype(np.float64)) * s_t
-    sal = _normalise(hood.mean(s_t))
+    if p["accumulation"] == "quantile":
+        sal = _normalise(hood.quantile(s_t, p["acc_quantile"]))
+    else:
+        sal = _normalise(hood.mean(s_t))
     log.info("%s: %d of %d Lasso problems stopped at %d sweeps (near-duplicate atoms)",
              func, n_bad, n, LASSO_ITER)
     return SaliencyResult(sal, s_t, sparsity, resid, Fbar, nrm, gauss, atoms, h, r, n_bad)
