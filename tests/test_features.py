@@ -1,5 +1,7 @@
 """Tests of filters/features.py: sharp features and hole boundaries (thesis ch.7)."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -245,7 +247,9 @@ def test_noisy_crease_localisation_uses_more_neighbours(cube, caplog):
     assert len(msg) == 1 and "k=16" not in msg[0]
     # and the result still follows the mask rule
     assert np.array_equal(r.mask, (r.score > r.threshold) & (r.crease_distance <= r.crease_limit))
-    assert any("two-plane crease model" in m and "k=24" not in m for m in caplog.messages)
+    ks = [int(re.search(r"\(k=(\d+)\)", m).group(1)) for m in caplog.messages
+          if "two-plane crease model" in m]
+    assert len(ks) == 1 and ks[0] > F._PLANE_K
     p, rec, f1 = precision_recall_f1(r.mask, cube.sharp)
     assert p > 0.7 and rec > 0.7
 
@@ -342,19 +346,78 @@ def test_border_distance_follows_the_true_rim_distance(disc):
 def test_rim_localisation_raises_precision():
     s = cut_holes(make_shape("cube", n=12000, seed=1), n_holes=3, radius=8.0, seed=0)
     loc = F.detect_hole_boundaries(s.points, seed=0)
-    raw = F.detect_hole_boundaries(s.points, seed=0, rim_width=None)
+    raw = F.detect_hole_boundaries(s.points, seed=0, rim_width=None, extent_width=None)
     assert raw.border_distance is None and loc.crease_distance is None
+    assert raw.border_extent is not None and loc.border_extent is not None
     p0, r0, _ = precision_recall_f1(raw.mask, s.rim)
     p1, r1, _ = precision_recall_f1(loc.mask, s.rim)
-    # measured 0.74 -> 0.81 precision, recall 0.96 -> 0.82
-    assert p1 > p0 + 0.04 and r1 > 0.75
-    assert not (loc.mask & ~raw.mask).any()
-    np.testing.assert_array_equal(loc.mask, raw.mask & (loc.border_distance <= 1.5))
+    # measured: precision 0.65 -> 0.88, recall 0.97 -> 0.86
+    assert p1 > p0 + 0.15 and r1 > 0.8
+    # the two localisation tests are applied as documented
+    assert (loc.border_extent[loc.mask] <= 1.4).all()
+    assert (loc.border_distance[loc.mask] <= 2.0).all()
+    # without the strip test: two-level Otsu, then the half-disc width alone
+    half = F.detect_hole_boundaries(s.points, seed=0, extent_width=None)
+    assert not (half.mask & ~raw.mask).any()
+    np.testing.assert_array_equal(half.mask, raw.mask & (half.border_distance <= 2.0))
+
+
+def test_strip_extent_known_answers():
+    # a half-plane sampled on a unit grid (x <= 0): the surface ends at x = 0
+    g = np.arange(-15.0, 0.5)
+    xx, yy = np.meshgrid(g, np.arange(-15.0, 16.0))
+    pts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
+    # a narrow hole (radius 3) centred 6 units inside: a strip beyond it
+    # finds the far side, which must not count as surface
+    hole = np.hypot(pts[:, 0] + 8.0, pts[:, 1] - 8.0) < 3.0
+    pts = pts[~hole]
+    q = np.array([[0.0, -5.0, 0], [-1.0, -5.0, 0], [-2.0, -5.0, 0], [-7.0, -7.0, 0],
+                  [-4.0, 8.0, 0]])
+    qi = np.array([int(np.argmin(np.linalg.norm(pts - a, axis=1))) for a in q])
+    _, idx = knn(pts, 80, query=pts[qi])
+    x = pts[idx] - pts[qi, None, :]
+    ext = F.strip_extent(x, x.mean(axis=1), np.tile([0.0, 0.0, 1.0], (len(qi), 1)),
+                         h=1.0)
+    # rows 0, 1, 2 from the border: distance to the outermost row (the
+    # border normal comes from the centroid shift of a k-NN set with ties at
+    # equal grid distances, so it may tilt slightly)
+    np.testing.assert_allclose(ext[:3], [0.0, 1.0, 2.0], atol=0.05)
+    # interior: about the neighbourhood radius (80 grid points: 4-5 units)
+    assert ext[3] > 3.5
+    # 1 unit from the edge of the hole (which spans x in (-11, -5) on y = 8):
+    # the hole is the gap, its far side (x <= -11) is not counted
+    assert ext[4] == pytest.approx(1.0, abs=0.05)
+
+
+def test_strip_extent_follows_the_true_rim_distance(disc):
+    r = F.detect_hole_boundaries(disc.points, seed=0)
+    true = disc.extra["boundary_distance"] / disc.h
+    e = r.border_extent
+    near = true < 4
+    # measured: correlation 0.93; all points within 0.75h at most 1.4h; 1 % of
+    # those 2.5h-4h inside and 0.7 % of the interior (beyond 6h) at most 1.4h
+    assert np.corrcoef(e[near], true[near])[0, 1] > 0.85
+    assert (e[true < 0.75] <= 1.4).mean() > 0.98
+    assert (e[(true > 2.5) & (true < 4)] <= 1.4).mean() < 0.05
+    assert np.median(e[true > 6]) > 3.5
+
+
+def test_small_hole_rims_found():
+    # holes of radius 3h are narrower than the largest neighbourhood (about
+    # 5h): its centroid shift spans the hole, so the old largest-scale gate
+    # and the half-disc distance lost them (measured recall 0.09 on their
+    # rims); the scale-averaged gate and the strip extent keep 0.55
+    s = cut_holes(make_shape("plane", n=12000, seed=3), n_holes=4, radius=3.0, seed=0)
+    r = F.detect_hole_boundaries(s.points, seed=0)
+    assert r.mask[s.extra["hole_rim"]].mean() > 0.4
+    p, rec, f1 = precision_recall_f1(r.mask, s.rim)
+    assert p > 0.8 and f1 > 0.8
 
 
 def test_closed_surface_has_almost_no_boundary(cube):
     r = F.detect_hole_boundaries(cube.points, seed=0)
-    assert r.mask.mean() < 0.02
+    # measured 0.05 % (1.9 % without the strip test, with the two-level Otsu)
+    assert r.mask.mean() < 0.005
     # without the geometric gate the pure rarity rule flags the creases
     r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0)
     assert r0.mask.sum() > r.mask.sum()
