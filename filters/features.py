@@ -417,8 +417,9 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
     neighbours' normals, taken as sign-free axes, are split into two groups
     -- the two faces of a crease -- by 2-means seeded with the dominant axis
     of their scatter Σ n nᵀ and the normal farthest from it
-    (``_split_axes``), and a least-squares plane is fitted to each group; ``iters`` k-planes passes then reassign every
-    neighbour to the nearer plane and refit.  The crease is the intersection
+    (``_split_axes``), and a least-squares plane is fitted to each group;
+    ``iters`` k-planes passes then reassign every neighbour to the nearer
+    plane and refit.  The crease is the intersection
     line of the two planes; the result is the distance of p_i to it.  Points
     whose planes meet at less than ``min_angle`` degrees or hold fewer than
     4 points get ``inf`` (no crease model).
@@ -702,7 +703,8 @@ PARAMS_SHARP = _common_params(8, 40, 0.1, "l1", (
           "if it lies within this distance of the crease line estimated from its "
           "neighbourhood's ridge strength (used where the two-plane model of "
           "plane_width does not fit; see Notes).  Empty = no localisation (the "
-          "thesis' rule (7.11) alone).", low=0.0, high=100.0, closed="right", unit="h", optional=True),
+          "thesis' rule (7.11) alone).", low=0.0, high=100.0, closed="right", unit="h",
+          optional=True),
     Param("plane_width", float, 1.0, "Localisation width where two planes fitted to a "
           "detected point's neighbourhood explain it to the noise level: the point is "
           "kept if it lies within this distance of their intersection line (see "
@@ -1199,7 +1201,8 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
     """
     p = resolve_params(PARAMS_SHARP, dict(
         crease_width=crease_width, plane_width=plane_width, row_width=row_width,
-        min_angle=min_angle, n_scales=n_scales, k_min=k_min, k_max=k_max, n_atoms=n_atoms, coder=coder,
+        min_angle=min_angle, n_scales=n_scales, k_min=k_min, k_max=k_max,
+        n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
         max_train=max_train, seed=seed), "detect_sharp_features")
     return _detect(points, normals, p, "detect_sharp_features", "sharp")
