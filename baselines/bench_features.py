@@ -379,7 +379,8 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
     Each timing runs in an isolated child (``harness.measure``): "ours" is
     the call in a process that has already run one small detection (numba
     kernels loaded), "first call" the same call as the first of a fresh
-    process (it also pays loading the kernels from numba's cache, about 1 s).
+    process (it also pays loading the kernels from numba's cache: 0.1-0.3 s
+    measured, more on the first run after an install, which compiles them).
     """
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     sizes = (5000, 20000) if quick else (14_375, 28_750, 57_500, 115_000)
