@@ -643,7 +643,7 @@ def add_noise(points, normals=None, sigma: float = 0.2, h: float | None = None,
 # holes
 
 def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int | None = 0,
-              *, rim_width: float = 1.5) -> Sample:
+              *, rim_width: float = 1.5, centers=None) -> Sample:
     """Remove ``n_holes`` balls from a sample and label the new rims.
 
     Parameters
@@ -656,6 +656,9 @@ def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int |
     seed : int or None, default=0
     rim_width : float, default=1.5
         Rim band width in units of h.
+    centers : (k, 3) float, optional
+        Explicit hole centres (then ``n_holes`` and ``seed`` are not used), e.g.
+        on sharp edges to test rims that cross a crease.
 
     Returns
     -------
@@ -690,32 +693,10 @@ def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int |
     n = len(pts)
     h = sample.h
     r = radius * h
-    # distance to features that a hole should avoid
-    avoid = np.full(n, np.inf)
-    for key, mask in (("edge_distance", sample.sharp), ("boundary_distance", sample.rim)):
-        if key in sample.extra:
-            avoid = np.minimum(avoid, np.asarray(sample.extra[key], dtype=np.float64))
-        elif mask is not None and mask.any():
-            d, _ = cKDTree(pts[mask]).query(pts, k=1, workers=-1)
-            avoid = np.minimum(avoid, d)
-    rng = np.random.default_rng(seed)
-    order = rng.permutation(n)
-    centres: list[np.ndarray] = []
-    for relax in range(3):
-        min_avoid = (r + 2.0 * h) if relax < 2 else 0.0
-        min_sep = (2.0 * r + 4.0 * h) if relax == 0 else 0.0
-        centres = []
-        for i in order[avoid[order] > min_avoid]:
-            if all(np.linalg.norm(pts[i] - c) >= min_sep for c in centres):
-                centres.append(pts[i])
-                if len(centres) == n_holes:
-                    break
-        if len(centres) == n_holes:
-            break
-        log.info("cut_holes: relaxing placement constraints (level %d)", relax + 1)
-    if len(centres) < n_holes:
-        raise InvalidParameterError(f"{func}: cannot place {n_holes} holes in {n} points")
-    C = np.array(centres)
+    if centers is not None:
+        C = as_points(centers, func=func, name="centers", min_points=1)
+    else:
+        C = _place_holes(sample, n_holes, r, seed, func)
     d, _ = cKDTree(C).query(pts, k=1, workers=-1)
     keep = d >= r
     if keep.sum() < 7:
@@ -743,6 +724,37 @@ def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int |
                   None if sample.sharp is None else sample.sharp[keep],
                   old_rim | hole_rim, average_spacing(new_pts), sample.name + "_holes",
                   None, extra)
+
+
+def _place_holes(sample: Sample, n_holes: int, r: float, seed, func: str) -> np.ndarray:
+    """Hole centres for ``cut_holes`` (placement rules in its Notes)."""
+    pts, h, n = sample.points, sample.h, len(sample.points)
+    # distance to features that a hole should avoid
+    avoid = np.full(n, np.inf)
+    for key, mask in (("edge_distance", sample.sharp), ("boundary_distance", sample.rim)):
+        if key in sample.extra:
+            avoid = np.minimum(avoid, np.asarray(sample.extra[key], dtype=np.float64))
+        elif mask is not None and mask.any():
+            d, _ = cKDTree(pts[mask]).query(pts, k=1, workers=-1)
+            avoid = np.minimum(avoid, d)
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(n)
+    centres: list[np.ndarray] = []
+    for relax in range(3):
+        min_avoid = (r + 2.0 * h) if relax < 2 else 0.0
+        min_sep = (2.0 * r + 4.0 * h) if relax == 0 else 0.0
+        centres = []
+        for i in order[avoid[order] > min_avoid]:
+            if all(np.linalg.norm(pts[i] - c) >= min_sep for c in centres):
+                centres.append(pts[i])
+                if len(centres) == n_holes:
+                    break
+        if len(centres) == n_holes:
+            break
+        log.info("cut_holes: relaxing placement constraints (level %d)", relax + 1)
+    if len(centres) < n_holes:
+        raise InvalidParameterError(f"{func}: cannot place {n_holes} holes in {n} points")
+    return np.array(centres)
 
 
 # Mesh-based ground truth lives in meshes.py; re-exported here so that one import

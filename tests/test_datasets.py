@@ -334,6 +334,18 @@ def test_cut_holes_keeps_open_boundary_and_is_seeded():
         cut_holes(s, radius=-1)
 
 
+def test_cut_holes_at_given_centres():
+    s = make_shape("cube", 8000, seed=0)
+    C = np.array([[0.5, 0.5, 0.0], [-0.5, 0.0, -0.5]])   # on two edges
+    c = cut_holes(s, radius=6.0, centers=C, seed=None)
+    np.testing.assert_array_equal(c.extra["hole_centers"], C)
+    d = np.linalg.norm(s.points[:, None] - C[None], axis=2).min(1)
+    np.testing.assert_array_equal(c.points, s.points[d >= 6.0 * s.h])
+    np.testing.assert_array_equal(c.rim, (d < 7.5 * s.h)[d >= 6.0 * s.h])
+    with pytest.raises(PointCloudError, match="centers"):
+        cut_holes(s, centers=[[np.nan, 0.0, 0.0]])
+
+
 # ------------------------------------------------------------------- meshes
 def _grid_mesh(fold_deg=0.0):
     """3x3-vertex unit square (8 triangles), the x > 0.5 half folded up by fold_deg."""

@@ -426,6 +426,41 @@ def test_closed_surface_has_almost_no_boundary(cube):
     assert r0.mask.sum() > r.mask.sum()
 
 
+def test_flatness_gate_keeps_rims_across_creases():
+    # known answer: half a disc folded by 90 degrees (a rim crossing a
+    # right-angle crease) has surface variation 0.128, under the default 0.13
+    u = np.random.default_rng(0).uniform(-1, 1, (40000, 2))
+    u = u[(u ** 2).sum(1) < 1]
+    u = u[u[:, 0] > 0]
+    fold = np.column_stack([u[:, 0], np.minimum(u[:, 1], 0), np.maximum(u[:, 1], 0)])
+    lam = np.linalg.eigvalsh(np.cov(fold.T))
+    assert lam[0] / lam.sum() == pytest.approx(0.128, abs=0.003)
+    # holes centred on the cube's edges: the gate removes no rim point there
+    from baselines.bench_features import crease_centres
+    base = make_shape("cube", n=12000, seed=1)
+    s = cut_holes(base, radius=6.0, centers=crease_centres(base, 3, 6.0, seed=0))
+    on = F.detect_hole_boundaries(s.points, seed=0)
+    off = F.detect_hole_boundaries(s.points, seed=0, max_variation=None)
+    assert not (on.mask & ~off.mask).any()
+    assert (off.mask & ~on.mask & s.rim).sum() <= 0.02 * s.rim.sum()
+    assert precision_recall_f1(on.mask, s.rim)[2] > 0.7     # measured 0.74
+
+
+def test_flatness_gate_drops_thin_part_ends():
+    # pymeshlab's closed cow (2,903 vertices): legs, ears and muzzle 2-4h
+    # thick end inside the larger neighbourhoods, which then look like rims;
+    # measured 10.4 % flagged without the gate, 6.8 % with it
+    from baselines.datasets import load_sample_mesh
+    try:
+        cow = load_sample_mesh("cow")
+    except Exception as exc:  # pymeshlab without its sample meshes
+        pytest.skip(f"cow sample mesh unavailable: {exc}")
+    on = F.detect_hole_boundaries(cow.points, seed=0)
+    off = F.detect_hole_boundaries(cow.points, seed=0, max_variation=None)
+    assert not (on.mask & ~off.mask).any()
+    assert on.mask.mean() < 0.75 * off.mask.mean()
+
+
 def test_holes_deterministic_and_invariant(disc):
     a = F.detect_hole_boundaries(disc.points, seed=2)
     b = F.detect_hole_boundaries(disc.points, seed=2)
