@@ -51,6 +51,8 @@ SHARP_BASELINES = ("surface_variation", "normal_variation", "projected_distance"
 #: half-widths (h) of the single-rule truth of the consistency check
 CHECK_WIDTHS = (0.5, 1.0)
 HOLE_BASELINES = ("angle_gap",)
+#: ``ours_raw`` for holes: the code-length rule with its shift gate alone
+_HOLE_RAW = dict(rim_width=None, extent_width=None, max_variation=None, min_support=0)
 
 
 def _blas_one_thread():
@@ -296,12 +298,12 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
             pts = s.points if sig == 0 else datasets.add_noise(
                 s.points, s.normals, sigma=sig, h=s.h, seed=seed + 1)
             res = _run_all(pts, np.zeros(len(pts), dtype=bool), F.detect_hole_boundaries,
-                           HOLE_BASELINES, seed, raw_kw=dict(rim_width=None, extent_width=None))
+                           HOLE_BASELINES, seed, raw_kw=_HOLE_RAW)
             closed_rows.append({"data": name, "noise": sig, "n": len(pts), "results": res})
         hole_rows = []
         for name, s in _hole_cases(quick, seed):
             res = _run_all(s.points, s.rim, F.detect_hole_boundaries, HOLE_BASELINES, seed,
-                           raw_kw=dict(rim_width=None, extent_width=None))
+                           raw_kw=_HOLE_RAW)
             log.info("bench_features: holes %s: %s", name,
                      {k: round(v.get("f1", -1), 3) for k, v in res.items()})
             hole_rows.append({"data": name, "n": len(s.points), "results": res,
@@ -339,10 +341,10 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "Ours = `detect_sharp_features` / `detect_hole_boundaries` with default "
           "parameters (seed %d); classic baselines from `baselines/classic.py` with "
           "Otsu thresholds (angle gap: π/2, k = 50); `ours_raw` = the same detectors "
-          "without the final localisation step (`crease_width=None, min_angle=0` / "
-          "`rim_width=None, "
-          "extent_width=None`), i.e. the code-length rule alone (for holes with its "
-          "geometric gate and two-level Otsu threshold).  Ground truth: points within 1h of "
+          "without the final localisation and clean-up steps (`crease_width=None, "
+          "min_angle=0` / `rim_width=None, extent_width=None, max_variation=None, "
+          "min_support=0`), i.e. the code-length rule alone (for holes with its "
+          "shift gate and two-level Otsu threshold).  Ground truth: points within 1h of "
           "an edge with dihedral angle > 30° (sharp; on the shared mesh-vertex CAD models "
           "the vertices of such mesh edges), within 1.5h of a border (rim); "
           "noise is Gaussian along the normal, σ in units of h.%s" % (

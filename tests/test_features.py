@@ -418,12 +418,31 @@ def test_small_hole_rims_found():
 
 
 def test_closed_surface_has_almost_no_boundary(cube):
-    r = F.detect_hole_boundaries(cube.points, seed=0)
+    r = F.detect_hole_boundaries(cube.points, seed=0, min_support=0)
     # measured 0.05 % (1.9 % without the strip test, with the two-level Otsu)
     assert r.mask.mean() < 0.005
     # without the geometric gate the pure rarity rule flags the creases
-    r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0)
+    r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0, min_support=0)
     assert r0.mask.sum() > r.mask.sum()
+
+
+def test_border_support_drops_lone_detections():
+    # a holed cube: most interior detections (no border within 5h) go, the
+    # rims stay
+    s = cut_holes(make_shape("cube", n=20000, seed=0), n_holes=3, radius=8.0, seed=0)
+    on = F.detect_hole_boundaries(s.points, seed=0)
+    off = F.detect_hole_boundaries(s.points, seed=0, min_support=0)
+    assert not (on.mask & ~off.mask).any()
+    far = s.extra["boundary_distance"] > 5.0 * s.h
+    # measured: 22 interior detections without the support test, 7 with it
+    # (small clusters remain)
+    assert (off.mask & far).sum() >= 10
+    assert (on.mask & far).sum() <= 0.5 * (off.mask & far).sum()
+    assert (off.mask & ~on.mask & s.rim).sum() <= 0.02 * s.rim.sum()
+    # one pass: support counted among the detections before the test
+    det = s.points[off.mask]
+    support = (np.linalg.norm(det[:, None] - det[None], axis=2) <= 3.0 * on.h).sum(1) - 1
+    np.testing.assert_array_equal(on.mask[off.mask], support >= 2)
 
 
 def test_flatness_gate_keeps_rims_across_creases():
