@@ -384,8 +384,9 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "masks against one rule for every set, \"within w·h of a sharp edge\" "
           "(mesh models: distance to the sharp mesh edges), w = 0.5 and 1.0.  It is a "
           "check, not the headline: the tables above keep the issue's definitions.  "
-          "Ours chooses its band from the sampling (`plane_width` = 1h on irregular "
-          "clouds, `row_width` = 0.5h on regular ones such as the mesh vertices, by "
+          "Ours chooses its band from the sampling (`plane_width` = 1h / `crease_width` "
+          "= 0.7h on irregular clouds, `row_width` = 0.5h on regular ones such as the "
+          "mesh vertices, by "
           "the nearest-neighbour distance CV; see `detect_sharp_features` Notes), so "
           "under the single 1h rule its mesh-model rows drop by construction.", "",
           harness.markdown_table(
