@@ -349,8 +349,11 @@ def test_border_distance_follows_the_true_rim_distance(disc):
 
 def test_rim_localisation_raises_precision():
     s = cut_holes(make_shape("cube", n=12000, seed=1), n_holes=3, radius=8.0, seed=0)
-    loc = F.detect_hole_boundaries(s.points, seed=0)
-    raw = F.detect_hole_boundaries(s.points, seed=0, rim_width=None, extent_width=None)
+    # min_radius=0: the border-size test would clean the raw rule's
+    # detections too (tested on its own below)
+    loc = F.detect_hole_boundaries(s.points, seed=0, min_radius=0)
+    raw = F.detect_hole_boundaries(s.points, seed=0, rim_width=None, extent_width=None,
+                                   min_radius=0)
     assert raw.border_distance is None and loc.crease_distance is None
     assert raw.border_extent is not None and loc.border_extent is not None
     p0, r0, _ = precision_recall_f1(raw.mask, s.rim)
@@ -361,7 +364,7 @@ def test_rim_localisation_raises_precision():
     assert (loc.border_extent[loc.mask] <= 1.4).all()
     assert (loc.border_distance[loc.mask] <= 2.0).all()
     # without the strip test: two-level Otsu, then the half-disc width alone
-    half = F.detect_hole_boundaries(s.points, seed=0, extent_width=None)
+    half = F.detect_hole_boundaries(s.points, seed=0, extent_width=None, min_radius=0)
     assert not (half.mask & ~raw.mask).any()
     np.testing.assert_array_equal(half.mask, raw.mask & (half.border_distance <= 2.0))
 
@@ -419,11 +422,12 @@ def test_small_hole_rims_found():
 
 
 def test_closed_surface_has_almost_no_boundary(cube):
-    r = F.detect_hole_boundaries(cube.points, seed=0, min_support=0)
+    r = F.detect_hole_boundaries(cube.points, seed=0, min_support=0, min_radius=0)
     # measured 0.05 % (1.9 % without the strip test, with the two-level Otsu)
     assert r.mask.mean() < 0.005
     # without the geometric gate the pure rarity rule flags the creases
-    r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0, min_support=0)
+    r0 = F.detect_hole_boundaries(cube.points, seed=0, min_shift=0.0, min_support=0,
+                                  min_radius=0)
     assert r0.mask.sum() > r.mask.sum()
 
 
@@ -431,8 +435,8 @@ def test_border_support_drops_lone_detections():
     # a holed cube: most interior detections (no border within 5h) go, the
     # rims stay
     s = cut_holes(make_shape("cube", n=20000, seed=0), n_holes=3, radius=8.0, seed=0)
-    on = F.detect_hole_boundaries(s.points, seed=0)
-    off = F.detect_hole_boundaries(s.points, seed=0, min_support=0)
+    on = F.detect_hole_boundaries(s.points, seed=0, min_radius=0)
+    off = F.detect_hole_boundaries(s.points, seed=0, min_support=0, min_radius=0)
     assert not (on.mask & ~off.mask).any()
     far = s.extra["boundary_distance"] > 5.0 * s.h
     # measured: 22 interior detections without the support test, 7 with it
@@ -444,6 +448,61 @@ def test_border_support_drops_lone_detections():
     det = s.points[off.mask]
     support = (np.linalg.norm(det[:, None] - det[None], axis=2) <= 3.0 * on.h).sum(1) - 1
     np.testing.assert_array_equal(on.mask[off.mask], support >= 2)
+
+
+def test_border_radius_known_answers():
+    # two rings (radius 5 and 12, spacing < 1) far apart, and a lone point
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    ring = np.column_stack([np.cos(t), np.sin(t), np.zeros_like(t)])
+    pts = np.vstack([5 * ring, 12 * ring + [100, 0, 0], [[0, 100, 0]]])
+    r = F.border_radius(pts, link=1.5)
+    np.testing.assert_allclose(r[:80], 5.0)
+    np.testing.assert_allclose(r[80:160], 12.0)
+    assert r[160] == 0.0
+    # a link shorter than the spacing splits the rings into lone points
+    assert (F.border_radius(pts, link=0.1) == 0).all()
+    assert F.border_radius(np.zeros((0, 3)), link=1.0).shape == (0,)
+
+
+def test_min_radius_drops_chance_gaps_of_random_sampling_only():
+    # the same 3h hole in a random and in a regular (grid) sampling of a plane:
+    # min_radius removes it from the random one, where gaps that size occur by
+    # chance, and not from the grid, where they do not
+    s = make_shape("plane", n=10000, seed=0)
+    s = cut_holes(s, radius=3.0, centers=np.array([[0.0, 0.0, 0.0]]))
+    hole = s.extra["hole_rim"]
+    kept = F.detect_hole_boundaries(s.points, seed=0)      # default 0.3 ln n = 2.76h
+    assert kept.mask[hole].mean() > 0.5                     # measured 0.68
+    big = F.detect_hole_boundaries(s.points, seed=0, min_radius=10.0)
+    assert not big.mask[hole].any()
+    assert big.mask[s.rim & ~hole].mean() > 0.8             # the square's border stays
+    g = np.arange(100.0)
+    u, v = np.meshgrid(g, g)
+    grid = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)])
+    grid = grid[np.hypot(grid[:, 0] - 50, grid[:, 1] - 50) > 3.0]
+    near = np.hypot(grid[:, 0] - 50, grid[:, 1] - 50) < 4.5
+    on = F.detect_hole_boundaries(grid, seed=0, min_radius=10.0)
+    off = F.detect_hole_boundaries(grid, seed=0, min_radius=0.0)
+    np.testing.assert_array_equal(on.mask, off.mask)
+    assert on.mask[near].mean() > 0.3                       # measured 0.45
+
+
+def test_min_radius_removes_interior_clusters_keeps_rims():
+    # a holed 20K-point cube: the clusters the support test leaves in the
+    # interior are chance gaps of the sampling (border radius <= 2.3h here)
+    s = cut_holes(make_shape("cube", n=20000, seed=0), n_holes=3, radius=8.0, seed=0)
+    on = F.detect_hole_boundaries(s.points, seed=0)
+    off = F.detect_hole_boundaries(s.points, seed=0, min_radius=0)
+    # dropped: exactly the borders of radius < 0.3 ln n (2.97h)
+    det = np.flatnonzero(off.mask)
+    radius = F.border_radius(s.points[det], 3.0 * off.h) / off.h
+    np.testing.assert_array_equal(on.mask[det], radius >= 0.3 * np.log(len(s.points)))
+    # what lies beyond a link (3h) of the rims' 1.5h band is gone (measured:
+    # 3 such points without the test); the rims stay
+    far = s.extra["boundary_distance"] > 4.5 * s.h
+    assert (off.mask & far).sum() > (on.mask & far).sum()
+    assert not (on.mask & (s.extra["boundary_distance"] > 8.0 * s.h)).any()
+    assert (off.mask & ~on.mask & s.rim).sum() <= 0.02 * s.rim.sum()
 
 
 def test_flatness_gate_keeps_rims_across_creases():
