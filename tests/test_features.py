@@ -635,6 +635,40 @@ def _folded_grid(m=21):
     return V, Fc
 
 
+def _prism(n_sides, caps=True):
+    """A unit n-gon prism, outward-oriented triangles; adjacent side faces
+    meet at 360/n degrees, sides and caps at 90."""
+    th = 2 * np.pi * np.arange(n_sides) / n_sides
+    ring = np.c_[np.cos(th), np.sin(th)]
+    V = np.r_[np.c_[ring, np.zeros(n_sides)], np.c_[ring, np.ones(n_sides)],
+              [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]]
+    i = np.arange(n_sides)
+    j = (i + 1) % n_sides
+    tris = [np.c_[i, j, j + n_sides], np.c_[i, j + n_sides, i + n_sides]]
+    if caps:
+        tris += [np.c_[np.full(n_sides, 2 * n_sides), j, i],
+                 np.c_[np.full(n_sides, 2 * n_sides + 1), i + n_sides, j + n_sides]]
+    return V, np.vstack(tris)
+
+
+def test_truth_margin_known_answers():
+    from baselines.bench_features import truth_margin
+    from baselines.meshes import mesh_sample
+
+    # closed 14-gon prism: the 28 cap edges (90°) are sharp, the 14 side
+    # edges (25.7°) lie just below the rule
+    m = truth_margin(mesh_sample(*_prism(14)))
+    assert m["sharp_edges"] == 28 and m["median_angle"] == pytest.approx(90.0)
+    assert m["near_rule_vertices"] == 0.0 and m["edges_just_below"] == 14
+    # open 10-gon tube: only the 36° side edges are sharp, every sharp vertex
+    # is near the rule (boundary edges have no angle)
+    V, Fc = _prism(10, caps=False)
+    m = truth_margin(mesh_sample(V[:20], Fc))
+    assert m["sharp_edges"] == 10 and m["median_angle"] == pytest.approx(36.0)
+    assert m["near_rule_vertices"] == 1.0 and m["edges_just_below"] == 0
+    assert truth_margin(make_shape("cube", n=500, seed=0)) is None
+
+
 def test_edge_distance_h_matches_the_mesh_vertex_truth():
     from baselines.bench_features import edge_distance_h
     from baselines.meshes import mesh_sample
