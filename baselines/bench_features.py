@@ -255,6 +255,30 @@ def _clean_f1(rows, name, methods) -> list:
     return [None, None]
 
 
+def _margin_section(margins, sharp_rows, methods) -> list[str]:
+    """Markdown lines of the truth-margin table (none without mesh models)."""
+    if not margins:
+        return []
+    return [
+        "## How far the mesh truth lies from its angle rule", "",
+        "The mesh-vertex truth is \"a vertex of an edge with dihedral angle > "
+        "30°\".  Where the part has real creases the sharp edges lie far above "
+        "30°; on a coarsely tessellated smooth part the angles form a continuum "
+        "through the rule, and the tessellation decides which vertices are "
+        "labelled.  Near the rule = the sharp vertices whose steepest edge is at "
+        "most 40°; just below = edges of 20-30° (`truth_margin`).  Clean F1 from "
+        "the table above.", "",
+        harness.markdown_table(
+            ["model", "points", "sharp edges", "median angle (°)",
+             "sharp vertices near the rule (%)", "edges 20-30°", "ours F1",
+             "best classic F1"],
+            [[m["data"], m["n"], m["sharp_edges"], m["median_angle"],
+              None if m["near_rule_vertices"] is None
+              else 100.0 * m["near_rule_vertices"], m["edges_just_below"]]
+             + _clean_f1(sharp_rows, m["data"], methods) for m in margins],
+            fmt="{:.3g}")]
+
+
 def _flag_table(rows, methods):
     """Percentage of points flagged per method (rows of a cloud without the
     feature: every flagged point is a false positive)."""
@@ -446,23 +470,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
               [[lab] + [check[lab][m] for m in sm] for lab in check],
               best={i + 1: "max" for i in range(len(sm))}, fmt="{:.3f}"),
           "## Sharp features", "", _table(sharp_rows, sm),
-          "## How far the mesh truth lies from its angle rule", "",
-          "The mesh-vertex truth is \"a vertex of an edge with dihedral angle > "
-          "30°\".  Where the part has real creases the sharp edges lie far above "
-          "30°; on a coarsely tessellated smooth part the angles form a continuum "
-          "through the rule, and the tessellation decides which vertices are "
-          "labelled.  Near the rule = the sharp vertices whose steepest edge is at "
-          "most 40°; just below = edges of 20-30° (`truth_margin`).  Clean F1 from "
-          "the table above.", "",
-          harness.markdown_table(
-              ["model", "points", "sharp edges", "median angle (°)",
-               "sharp vertices near the rule (%)", "edges 20-30°", "ours F1",
-               "best classic F1"],
-              [[m["data"], m["n"], m["sharp_edges"], m["median_angle"],
-                None if m["near_rule_vertices"] is None
-                else 100.0 * m["near_rule_vertices"], m["edges_just_below"]]
-               + _clean_f1(sharp_rows, m["data"], sm) for m in margins],
-              fmt="{:.3g}"),
+          *_margin_section(margins, sharp_rows, sm),
           "## Clouds without sharp features", "",
           "A smooth sphere and a plane with smooth bumps (synthetic, random "
           "sampling): percentage of points each detector flags as sharp (every one "
