@@ -663,9 +663,13 @@ def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int |
     Returns
     -------
     Sample
-        The remaining points (input order kept); ``rim`` = old rim OR points within
-        ``radius + rim_width`` h of a hole centre, i.e. within ``rim_width`` h of a
-        removed ball's surface.  ``extra["keep_idx"]`` (indices into the input),
+        The remaining points (input order kept); ``rim`` = old rim OR the new
+        rims: on a sample with faces (mesh vertices) the kept vertices that
+        share a mesh edge with a removed one (one row, like a mesh's own
+        boundary-edge vertices), otherwise the points within ``radius +
+        rim_width`` h of a hole centre, i.e. within ``rim_width`` h of a
+        removed ball's surface (a band).  ``extra["rim_band"]`` is the band
+        rule for every sample.  ``extra["keep_idx"]`` (indices into the input),
         ``extra["hole_centers"]`` (k, 3) and ``extra["hole_rim"]`` (the new rims
         only) are added; per-point extras are subset, and
         ``extra["boundary_distance"]`` becomes the distance to the nearest open
@@ -714,11 +718,22 @@ def cut_holes(sample: Sample, n_holes: int = 3, radius: float = 8.0, seed: int |
     keep_idx = np.flatnonzero(keep)
     if "keep_idx" in sample.extra:
         keep_idx = np.asarray(sample.extra["keep_idx"])[keep_idx]
+    band = old_rim | hole_rim
+    if sample.faces is not None:
+        # mesh vertices: the rim is the first row of kept vertices, those that
+        # share a mesh edge with a removed one (as a mesh's own border is the
+        # vertices of its boundary edges)
+        Fc = np.asarray(sample.faces)
+        e = np.concatenate([Fc[:, [0, 1]], Fc[:, [1, 2]], Fc[:, [2, 0]]])
+        cut = keep[e[:, 0]] != keep[e[:, 1]]
+        row = np.zeros(n, dtype=bool)
+        row[e[cut].ravel()] = True
+        hole_rim = (row & keep)[keep]
     bd = d[keep] - r  # distance to the nearest removed ball's surface
     if "boundary_distance" in extra:
         bd = np.minimum(bd, extra["boundary_distance"])
     extra.update(keep_idx=keep_idx, hole_centers=C, hole_rim=hole_rim,
-                 boundary_distance=bd)
+                 boundary_distance=bd, rim_band=band)
     new_pts = pts[keep]
     return Sample(new_pts, sample.normals[keep],
                   None if sample.sharp is None else sample.sharp[keep],

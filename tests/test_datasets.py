@@ -346,6 +346,34 @@ def test_cut_holes_at_given_centres():
         cut_holes(s, centers=[[np.nan, 0.0, 0.0]])
 
 
+def test_cut_holes_in_a_mesh_label_the_first_vertex_row():
+    # a 60 x 60 unit grid mesh: the rim of a hole is the row of kept vertices
+    # joined by a mesh edge to a removed one; the band rule stays in rim_band
+    m = 60
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(m), np.arange(m), indexing="ij"))
+    V = np.column_stack([i, j, np.zeros(m * m)]).astype(float)
+    q = (i < m - 1) & (j < m - 1)
+    a = np.flatnonzero(q)
+    Fc = np.r_[np.c_[a, a + m, a + m + 1], np.c_[a, a + m + 1, a + 1]]
+    s = mesh_sample(V, Fc)
+    C = np.array([[30.3, 29.6, 0.0]])
+    c = cut_holes(s, radius=5.0, centers=C, seed=None)
+    d = np.linalg.norm(c.points - C, axis=1)
+    r = 5.0 * s.h
+    hole = c.extra["hole_rim"]
+    # each row vertex lies within one (diagonal) edge of the ball ...
+    assert (d[hole] < r + np.sqrt(2.0)).all()
+    # ... and every kept vertex within 0.7 of it has a removed edge neighbour
+    assert hole[d < r + 0.7].all()
+    np.testing.assert_array_equal(c.rim, hole | s.rim[c.extra["keep_idx"]])
+    np.testing.assert_array_equal(c.extra["rim_band"],
+                                  (d < r + 1.5 * s.h) | s.rim[c.extra["keep_idx"]])
+    assert hole.sum() < (c.extra["rim_band"] & ~s.rim[c.extra["keep_idx"]]).sum()
+    # a cloud without faces keeps the band rule
+    cloud = cut_holes(make_shape("plane", 6000, seed=0), radius=5.0, seed=0)
+    np.testing.assert_array_equal(cloud.rim, cloud.extra["rim_band"])
+
+
 # ------------------------------------------------------------------- meshes
 def _grid_mesh(fold_deg=0.0):
     """3x3-vertex unit square (8 triangles), the x > 0.5 half folded up by fold_deg."""

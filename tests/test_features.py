@@ -526,6 +526,42 @@ def test_min_radius_removes_interior_clusters_keeps_rims():
     assert (off.mask & ~on.mask & s.rim).sum() <= 0.02 * s.rim.sum()
 
 
+def _grid_plane(m=60):
+    g = np.arange(m, dtype=float)
+    u, v = np.meshgrid(g, g)
+    pts = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)])
+    edge = (pts[:, 0] == 0) | (pts[:, 0] == m - 1) | (pts[:, 1] == 0) | (pts[:, 1] == m - 1)
+    return pts, edge
+
+
+def test_outer_row_known_answer():
+    # the two outermost columns of a grid's left border (away from the
+    # corners): the outer one is kept, the one behind it is not
+    pts, _ = _grid_plane()
+    det = np.flatnonzero((pts[:, 0] <= 1) & (pts[:, 1] >= 5) & (pts[:, 1] <= 54))
+    h = average_spacing(pts)
+    np.testing.assert_array_equal(F.outer_row(pts, det, h, 0.6), pts[det, 0] == 0)
+    # a gap larger than the row spacing (1 = 0.87h) hides nothing
+    assert F.outer_row(pts, det, h, 1.0).all()
+    assert F.outer_row(pts, det[:1], h, 0.6).all()
+
+
+def test_row_gap_keeps_the_outer_row_of_regular_clouds_only():
+    # grid plane: without the outer-row test the band is two rows (measured
+    # precision 0.53 against the border row), with it exactly the row
+    pts, edge = _grid_plane()
+    on = F.detect_hole_boundaries(pts, seed=0)
+    off = F.detect_hole_boundaries(pts, seed=0, row_gap=None)
+    assert not (on.mask & ~off.mask).any()
+    assert precision_recall_f1(off.mask, edge)[0] < 0.7
+    np.testing.assert_array_equal(on.mask, edge)
+    # a random sampling is irregular: the test does not apply
+    disc = make_shape("disc", n=8000, seed=0)
+    np.testing.assert_array_equal(F.detect_hole_boundaries(disc.points, seed=0).mask,
+                                  F.detect_hole_boundaries(disc.points, seed=0,
+                                                           row_gap=None).mask)
+
+
 def test_flatness_gate_keeps_rims_across_creases():
     # known answer: half a disc folded by 90 degrees (a rim crossing a
     # right-angle crease) has surface variation 0.128, under the default 0.13
