@@ -102,6 +102,14 @@ def _run_all(points, truth, ours_fn, baselines, seed, raw_kw=None, alt_truths=No
     return out
 
 
+def _mesh_edge_angles(s):
+    """Edges of a Sample's mesh and their dihedral angles in degrees (NaN on
+    boundary / non-manifold edges)."""
+    _, unit, _ = meshes._face_geometry(s.points, s.faces)
+    edges, ang, _ = meshes._edge_angles(s.faces, unit)
+    return edges, ang
+
+
 def edge_distance_h(s, sharp_angle_deg: float = 30.0):
     """Distance of every point of a Sample to its nearest sharp edge, in h.
 
@@ -115,8 +123,7 @@ def edge_distance_h(s, sharp_angle_deg: float = 30.0):
         return np.asarray(s.extra["edge_distance"], dtype=np.float64) / s.h
     if s.faces is None:
         return None
-    _, unit, _ = meshes._face_geometry(s.points, s.faces)
-    edges, ang, _ = meshes._edge_angles(s.faces, unit)
+    edges, ang = _mesh_edge_angles(s)
     sel = np.nan_to_num(ang, nan=-1.0) > sharp_angle_deg
     if not sel.any():
         return np.full(len(s.points), np.inf)
@@ -138,8 +145,7 @@ def truth_margin(s, sharp_angle_deg: float = 30.0) -> dict | None:
     """
     if s.faces is None:
         return None
-    _, unit, _ = meshes._face_geometry(s.points, s.faces)
-    edges, ang, _ = meshes._edge_angles(s.faces, unit)
+    edges, ang = _mesh_edge_angles(s)
     a = np.nan_to_num(ang, nan=0.0)
     steep = np.zeros(len(s.points))
     np.maximum.at(steep, edges[:, 0], a)
