@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from filters._validation import InvalidParameterError, as_points, check_param, check_spread
-from filters.features import otsu_threshold
+from filters.features import largest_angle_gap, otsu_threshold
 from filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
 
 #: name -> function, for the benchmark
@@ -150,18 +150,7 @@ def angle_gap(points, *, k: int = 50, threshold: float | None = None) -> Classic
     step = 65_536
     for s in range(0, n, step):
         e = min(n, s + step)
-        nb = pts[idx[s:e, 1:]] - pts[s:e, None, :]
-        nn = nrm[s:e]
-        # tangent basis u, v of each point
-        a = np.where(np.abs(nn[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-        u = np.cross(nn, a)
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        v = np.cross(nn, u)
-        ang = np.arctan2(np.einsum("ckd,cd->ck", nb, v), np.einsum("ckd,cd->ck", nb, u))
-        ang = np.sort(ang, axis=1)
-        gaps = np.diff(ang, axis=1)
-        wrap = 2.0 * np.pi - (ang[:, -1] - ang[:, 0])
-        score[s:e] = np.maximum(gaps.max(axis=1, initial=0.0), wrap)
+        score[s:e] = largest_angle_gap(pts[idx[s:e, 1:]] - pts[s:e, None, :], nrm[s:e])
     return ClassicResult(score > threshold, score, float(threshold))
 
 

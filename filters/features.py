@@ -77,12 +77,13 @@ _SUPPORT_RADIUS = 3.0
 #: automatic sharp threshold as a fraction of Otsu's split when the crease-angle
 #: gate and the localisation are on (see detect_sharp_features Notes)
 _OTSU_SCALE_GATED = 0.6
-#: outer-row test of hole borders on regular sampling: radius (h) within which a
-#: detected point looks for detected points further out, cone (lateral offset
-#: over outward offset) and neighbours of the outward direction estimate
-_ROW_RADIUS = 2.5
-_ROW_CONE = 0.8
-_ROW_K = 30
+#: hole borders: a sampling is random-like (Poisson clumping, chance gaps, a
+#: border that is a band) when at least this fraction of the points has its
+#: nearest neighbour closer than ``_CLOSE_RATIO`` × the median nearest-neighbour
+#: distance; a uniform random sampling gives about 6 %, mesh vertices and range
+#: grids (graded ones too) below 0.5 % (see ``detect_hole_boundaries`` Notes)
+_CLOSE_RATIO = 0.3
+_RANDOM_CLOSE = 0.01
 #: default smallest hole radius (h) per unit of ln(n) on irregular sampling
 _CHANCE_GAP_PER_LOG_N = 0.3
 
@@ -262,9 +263,11 @@ def _multiscale(points, ks, kind, h, tree):
     m1 = float(nn1.mean())
     cv = float(nn1.std() / m1) if m1 > 0 else 0.0
     if kind == "hole":
-        # the hole kind returns the strip extent (in h) in the normals' slot
-        return out, float(h), (extent, variation), cv
-    return out, float(h), normals, cv
+        # the hole kind returns the strip extent (in h) in the normals' slot,
+        # and the fraction of close pairs (random-like sampling) with the CV
+        close = float(np.mean(nn1 < _CLOSE_RATIO * np.median(nn1)))
+        return out, float(h), (extent, variation), (cv, close)
+    return out, float(h), normals, (cv, None)
 
 
 def strip_extent(x: np.ndarray, mean: np.ndarray, normal: np.ndarray, *, h: float,
@@ -543,67 +546,73 @@ def border_radius(points: np.ndarray, link: float) -> np.ndarray:
     return radius[lab]
 
 
-def outer_row(points: np.ndarray, det: np.ndarray, h: float, gap: float, *,
-              radius: float = _ROW_RADIUS, cone: float = _ROW_CONE, k: int = _ROW_K,
-              tree=None) -> np.ndarray:
-    """Which detected border points lie on the outermost row.
+def largest_angle_gap(offsets: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Largest angle between consecutive neighbour directions around a point.
 
-    Each detected point's outward direction u is the opposite of its
-    tangential centroid shift over its ``k`` nearest neighbours (as in
-    ``strip_extent``).  A point is *inside* the row when another detected
-    point within ``radius`` h lies at least ``gap`` h further out along u
-    and within the cone ``lateral < cone · outward`` (behind it, not beside
-    it along the border).
+    The offsets are projected on the plane orthogonal to the normal, their
+    polar angles sorted, and the largest difference between consecutive
+    angles (the wrap-around one included) is returned: about 2π/k inside a
+    surface, π on a straight border, more at a convex corner of a border
+    (the angle criterion of PCL's ``BoundaryEstimation``).
+
+    Parameters
+    ----------
+    offsets : (c, k, 3) float
+        Neighbour positions relative to each point (the point excluded).
+    normals : (c, 3) float
+        Unit normal of each point.
+
+    Returns
+    -------
+    (c,) float
+        Largest gap in radians, in [0, 2π].
+    """
+    nn = normals
+    a = np.where(np.abs(nn[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]),
+                 np.array([[0.0, 1.0, 0.0]]))
+    u = np.cross(nn, a)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(nn, u)
+    ang = np.sort(np.arctan2(np.einsum("ckd,cd->ck", offsets, v),
+                             np.einsum("ckd,cd->ck", offsets, u)), axis=1)
+    wrap = 2.0 * np.pi - (ang[:, -1] - ang[:, 0])
+    return np.maximum(np.diff(ang, axis=1).max(axis=1, initial=0.0), wrap)
+
+
+def border_gap(points: np.ndarray, det: np.ndarray, k: int, *, tree=None) -> np.ndarray:
+    """Largest angular gap (radians) of the ``k`` nearest neighbours of each
+    detected point, around its PCA normal over the same neighbours
+    (``largest_angle_gap``).
 
     Parameters
     ----------
     points : (n, 3) float
         The whole cloud.
     det : (m,) int
-        Indices of the detected points.
-    h : float
-        Average spacing.
-    gap : float
-        Smallest outward offset (h) of a point that hides another.
-    radius, cone : float
-        Search radius (h) and cone of the points that hide another.
+        Indices of the points to test.
     k : int
-        Neighbours (in the whole cloud) of the outward direction estimate.
+        Neighbourhood size, the point itself included.
     tree : cKDTree, optional
         Tree of ``points``.
 
     Returns
     -------
-    (m,) bool
-        True where no detected point lies behind the point.
+    (m,) float
     """
     m = len(det)
-    keep = np.ones(m, dtype=bool)
-    if m < 2:
-        return keep
+    out = np.zeros(m)
+    if m == 0:
+        return out
     tree = build_tree(points) if tree is None else tree
-    P = points[det]
-    dtree = build_tree(P)
-    kk = min(16, m)
+    k = min(int(k), len(points))
     for s in range(0, m, CHUNK):
         e = min(m, s + CHUNK)
-        _, idx = knn(points, min(k, len(points)), tree=tree, query=P[s:e])
-        x = points[idx] - P[s:e, None, :]
-        mean = x.mean(axis=1)
-        xc = x - mean[:, None, :]
+        _, idx = knn(points, k, tree=tree, query=points[det[s:e]])
+        x = points[idx[:, 1:]] - points[det[s:e], None, :]
+        xc = x - x.mean(axis=1, keepdims=True)
         _, nrm = sym3_eig(np.einsum("cki,ckj->cij", xc, xc))
-        t = mean - np.einsum("cd,cd->c", mean, nrm)[:, None] * nrm
-        u = -t / np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
-        dd, jj = dtree.query(P[s:e], k=kk, distance_upper_bound=radius * h)
-        valid = np.isfinite(dd)
-        jj = np.where(valid, jj, 0)
-        dv = P[jj] - P[s:e, None, :]
-        out = np.einsum("ckd,cd->ck", dv, u)
-        nz = np.einsum("ckd,cd->ck", dv, nrm)
-        lat = np.sqrt(np.maximum(np.einsum("ckd,ckd->ck", dv, dv) - out ** 2 - nz ** 2,
-                                 0.0))
-        keep[s:e] = ~(valid & (out >= gap * h) & (lat < cone * out)).any(axis=1)
-    return keep
+        out[s:e] = largest_angle_gap(x, nrm)
+    return out
 
 
 def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
@@ -875,12 +884,13 @@ PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
           "there.  Empty = 0.3·ln(n), just above the largest chance gaps of n random "
           "samples (measured 2.3h at 20K points, 3.5h at 1M; see Notes); 0 = off.",
           low=0.0, high=1000.0, unit="h", optional=True),
-    Param("row_gap", float, 0.6, "Outer row on a regularly sampled cloud (nearest-"
-          "neighbour CV < 0.35: mesh vertices, range grids), whose border is itself "
-          "a row of samples: a detected point is dropped when another detected point "
-          "within 2.5h lies at least this far further out, behind it (see Notes).  "
-          "Irregular clouds are not affected.  Empty = off.", low=0.0, high=100.0,
-          closed="neither", unit="h", optional=True)))
+    Param("row_angle", float, 90.0, "Border row on a mesh-like sampling (mesh "
+          "vertices, range grids: fewer than 1 % of the points closer to their nearest "
+          "neighbour than 0.3 x the median spacing), whose border is itself a row of "
+          "samples: a detected point is kept only if its k_min nearest neighbours, "
+          "seen around its normal, leave an empty angle wider than this (90 = PCL's "
+          "boundary criterion; see Notes).  Random-like clouds are not affected.  "
+          "Empty = off.", low=0.0, high=360.0, unit="deg", optional=True)))
 #: alias used by the bridge convention (one ``PARAMS`` per module)
 PARAMS = PARAMS_SHARP
 
@@ -913,7 +923,7 @@ def _score_stage(points, normals, p: dict, func: str, kind: str) -> dict:
     pts, _ = centered(pts)
     tree = build_tree(pts)
     ks = scale_sizes(p["k_min"], p["k_max"], p["n_scales"])
-    F, h, nrm, nn_cv = _multiscale(pts, ks, kind, None, tree)
+    F, h, nrm, (nn_cv, close) = _multiscale(pts, ks, kind, None, tree)
     log.info("%s: n=%d h=%.4g scales=%s", func, len(pts), h, ks.tolist())
     bdist = None
     if kind == "hole" and p["rim_width"] is not None:
@@ -960,7 +970,7 @@ def _score_stage(points, normals, p: dict, func: str, kind: str) -> dict:
         l1 = np.asarray(abs(codes).sum(axis=1)).ravel()
         score = l1 + resid
     return dict(pts=pts, tree=tree, ks=ks, F=F, h=h, bdist=bdist, score=score,
-                nnz=nnz, resid=resid, D=D, nn_cv=nn_cv,
+                nnz=nnz, resid=resid, D=D, nn_cv=nn_cv, close=close,
                 nrm=nrm if kind == "sharp" else None,
                 extent=nrm[0] if kind == "hole" else None,
                 variation=nrm[1] if kind == "hole" else None)
@@ -1036,7 +1046,12 @@ def _select(st: dict, p: dict, func: str, kind: str) -> DetectionResult:
         mask[det[support < p["min_support"]]] = False
         log.info("%s: border support keeps %d of %d detected points", func,
                  int(mask.sum()), len(det))
-    if kind == "hole" and st["nn_cv"] >= _REGULAR_CV and mask.any():
+    random_like = kind == "hole" and st["close"] >= _RANDOM_CLOSE
+    if kind == "hole":
+        log.info("%s: %.3g %% of the points have a neighbour closer than %.2g x the "
+                 "median spacing: %s sampling", func, 100.0 * st["close"], _CLOSE_RATIO,
+                 "random-like" if random_like else "mesh-like")
+    if random_like and mask.any():
         # chance gaps of a random sampling: drop borders too small to be told
         # from them (see detect_hole_boundaries Notes)
         r_min = (p["min_radius"] if p["min_radius"] is not None
@@ -1044,17 +1059,17 @@ def _select(st: dict, p: dict, func: str, kind: str) -> DetectionResult:
         det = np.flatnonzero(mask)
         radius = border_radius(pts[det], _SUPPORT_RADIUS * h) / h
         mask[det[radius < r_min]] = False
-        log.info("%s: nearest-neighbour CV %.3g (irregular sampling): borders of radius "
-                 ">= %.3g h keep %d of %d detected points", func, st["nn_cv"], r_min,
-                 int(mask.sum()), len(det))
-    if (kind == "hole" and p["row_gap"] is not None and st["nn_cv"] < _REGULAR_CV
+        log.info("%s: borders of radius >= %.3g h keep %d of %d detected points", func,
+                 r_min, int(mask.sum()), len(det))
+    if (kind == "hole" and not random_like and p["row_angle"] is not None
             and mask.any()):
-        # a regular sampling's border is a row of samples: keep the outer one
-        # (see detect_hole_boundaries Notes)
+        # a mesh-like sampling's border is a row of samples, each with an
+        # empty side (see detect_hole_boundaries Notes)
         det = np.flatnonzero(mask)
-        mask[det[~outer_row(pts, det, h, p["row_gap"], tree=tree)]] = False
-        log.info("%s: nearest-neighbour CV %.3g (regular sampling): outer row keeps %d "
-                 "of %d detected points", func, st["nn_cv"], int(mask.sum()), len(det))
+        gap = border_gap(pts, det, p["k_min"], tree=tree)
+        mask[det[gap <= np.radians(p["row_angle"])]] = False
+        log.info("%s: border row (angular gap > %.3g deg) keeps %d of %d detected "
+                 "points", func, p["row_angle"], int(mask.sum()), len(det))
     spread = None
     if kind == "sharp" and p["min_angle"] > 0 and mask.any():
         # crease-angle gate: the code length ranks points by rarity, so a
@@ -1447,7 +1462,7 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
                            extent_width: float | None = 1.4,
                            max_variation: float | None = 0.13,
                            min_support: int = 2, min_radius: float | None = None,
-                           row_gap: float | None = 0.6,
+                           row_angle: float | None = 90.0,
                            n_scales: int = 10, k_min: int = 16,
                            k_max: int = 80, n_atoms: int = 100, coder: str = "omp",
                            alpha: float = 0.01, tol: float = 0.3, score: str = "l1",
@@ -1484,16 +1499,17 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
     min_radius : float or None, default=None
         Smallest hole (see Notes): the detected points are linked into
         borders (chains of points at most 3h apart, ``border_radius``); on
-        an irregularly sampled cloud a border whose radius -- the largest
-        distance of its points from their centroid -- is below this many h
-        is dropped.  None: 0.3·ln(n) h (2.97h at 20K points, 4.1h at 1M),
-        just above the largest chance gap of a random sampling of n points.
-        Regularly sampled clouds keep every border.  0: off.
-    row_gap : float or None, default=0.6
-        Outer row (see Notes): on a regularly sampled cloud a detected point
-        is dropped when another detected point within 2.5h lies at least
-        this many h further out along the border normal, behind it
-        (``outer_row``).  Irregular clouds are not affected.  None: off.
+        a random-like sampling (see Notes) a border whose radius -- the
+        largest distance of its points from their centroid -- is below this
+        many h is dropped.  None: 0.3·ln(n) h (2.97h at 20K points, 4.1h at
+        1M), just above the largest chance gap of a random sampling of n
+        points.  Mesh-like clouds keep every border.  0: off.
+    row_angle : float or None, default=90
+        Border row (see Notes): on a mesh-like sampling a detected point is
+        kept only if its ``k_min`` nearest neighbours, projected on their
+        tangent plane, leave an empty angle wider than this many degrees
+        around it (``border_gap``).  Random-like clouds are not affected.
+        None: off.
     n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
         As in ``detect_sharp_features`` (defaults k_min=16, k_max=80, tol=0.3).
     score : {"l1", "count"}, default="l1"
@@ -1627,32 +1643,55 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
       at 0.5h).  The ragged border of the range scan also tilts u, so even
       its outermost row does not reach extent ≈ 0 everywhere (face 0.77 at
       1.4h, 0.66 at 0.5h).  The benchmark has since given the cut meshes the
-      row truth too (next bullet), and the row is found by the outer-row
+      row truth too (next bullet), and the row is found by the border-row
       test rather than by a width.
-    * Outer row ``row_gap`` (not in the thesis): on a regular sampling (the
-      nearest-neighbour CV below 0.35, as for the sharp ``row_width``) the
-      border is itself a row of samples, as a mesh's border is the vertices
-      of its boundary edges, while the steps above keep a band about two
-      rows wide (a 60 × 60 grid plane: precision 0.53 against its border
-      row).  A detected point is dropped when another detected point within
-      2.5h lies at least ``row_gap`` = 0.6h further out along its border
-      normal u (the opposite of the tangential centroid shift of its 30
-      nearest neighbours) and inside the cone lateral offset < 0.8 × outward
-      offset, i.e. behind it rather than beside it along a curved or ragged
-      border (``outer_row``).  The grid plane: exactly its border row.
-      Measured against the border-vertex row (the benchmark's mesh truth)
-      without → with: face range map 0.762 → 0.776, the 35,947-vertex
-      bunny's own holes 0.767 → 0.842, the bunny with three cut holes 0.811
-      → 0.983, and on two scans outside the benchmark when the rule was
-      chosen, nicolo 14,846 / 50,419 vertices 0.558 → 0.659 / 0.742 →
-      0.809.  Irregular clouds (random samples, the cow's mesh at CV 0.53)
-      are unchanged.  Sum of F1 over the first three for (radius, gap,
-      cone) = (1.5h, 0.5h, 1.0) / (2h, 0.5h, 1.0) / (2h, 0.5h, 0.6) /
-      (2.5h, 0.6h, 0.8) / (2h, 0.7h, 1.0): 2.552 / 2.545 / 2.583 / 2.601 /
-      2.576; without the cone (any detected point further out) the face
-      keeps precision 0.97 but recall 0.52-0.57 (F1 0.64-0.71).  Recall on
-      the face stays at 0.66: its scan border is ragged, and a border vertex
-      in a notch has border vertices behind it.
+    * Border row ``row_angle`` (not in the thesis): on mesh vertices and range
+      grids the border is itself a row of samples (a mesh's border is the
+      vertices of its boundary edges), while the steps above keep a band
+      about two rows wide (a 60 × 60 grid plane: precision 0.53 against its
+      border row).  A sample of the row has an empty side: its ``k_min``
+      nearest neighbours, projected on their tangent plane, leave an angle
+      of about π around it (3π/2 at a convex corner), the row behind it
+      sees the row in front (≤ π/4 inside a square grid).  So a detected
+      point is kept only if that largest angle exceeds ``row_angle`` = 90°,
+      the threshold of PCL's boundary criterion (``border_gap``; the
+      classic ``angle_gap`` baseline applies the same criterion to every
+      point with k = 50).  The grid plane and a grid graded 1 → 4 in both
+      directions: exactly their border rows.  Against the border-vertex row
+      (the benchmark's mesh truth), before → after: bunny with three cut
+      holes 0.983 → 0.994, cow with three cut holes 0.493 → 0.633, face
+      range map 0.776 → 0.805, the 35,947-vertex bunny's own holes 0.842 →
+      0.864, nicolo 14,846 / 50,419 vertices 0.659 → 0.717 / 0.809 →
+      0.895 (mean 0.760 → 0.818).  "Before" is the outer-row test it
+      replaces: a detected point was dropped when another detected point
+      lay 0.6h further out, inside a cone behind it; on top of the angle
+      test it gains nothing (6-case mean 0.818 vs 0.817), and it could not
+      see the second row behind a border with long edges (nicolo 14,846:
+      border edges 0.7-2.2h, its second row 0.35-1.1h inside, precision
+      0.50 for ours and the angle gap alike).  Sensitivity, mean over the
+      six: 72° / 90° / 108° / 135°: 0.775 / 0.818 / 0.826 / 0.769; the
+      default is PCL's value, not the best one here.  Recall on the face
+      stays at 0.70: its scan border is ragged, and a vertex in a notch of
+      it has neighbours on most sides.  Random-like clouds are not tested:
+      their truth is a band (about two rows at 1.5h), and the test would
+      keep its outer edge only (seven random-sample cases, mean 0.880 →
+      0.800).
+    * Mesh-like or random-like sampling: the row test above and the
+      smallest-hole test below depend on whether the samples form rows or
+      clump like a random (Poisson) sampling, which leaves chance gaps.  A
+      random sampling puts about 6 % of the points closer than 0.3 × the
+      median nearest-neighbour distance to their nearest neighbour
+      (measured 5.9-6.2 % on the synthetic parts), a mesh almost none:
+      0 % on pymeshlab's bunny and face, 0.4 % on its cow, 0.5 % on nicolo
+      14,846 -- also when its spacing is graded: the cow's
+      nearest-neighbour CV is 0.53, that of a random sampling (0.52), so
+      the CV rule of the sharp detector (``_REGULAR_CV``) calls it
+      irregular.  A cloud with at least 1 % such close pairs is random-like
+      (``_RANDOM_CLOSE``).  The cow is the one benchmark case the choice
+      moves: as random-like (CV rule) 0.493, mesh-like 0.633; it loses its
+      smallest-hole test with it (0.645 with both, measured with the
+      baseline's normals), and its closed mesh drops from 5.6 % to 1.7 %
+      of its points flagged.
     * Flatness gate ``max_variation`` (not in the thesis): a neighbourhood that
       wraps around a part thinner than itself ends where the part ends, so
       its centroid shifts like a rim's.  pymeshlab's closed 2,903-vertex cow
@@ -1702,10 +1741,11 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
       is 0.3·ln(n) h, 0.65h above it (2.3h at 2K, 2.97h at 20K, 4.1h at
       1M, 4.8h at 10M).  A hole of radius R gives a border of radius about
       R + 0.7h (measured 3.6-4.3h for R = 3h), so holes down to about
-      0.3·ln(n) − 0.7 h are reported.  The test applies only to irregular
-      sampling (nearest-neighbour CV ≥ 0.35, see ``detect_sharp_features``
-      Notes): a regular sampling has no chance gaps, and a one-vertex hole
-      in a range grid is a real hole.  Measured: fandisk 1M with three 8h
+      0.3·ln(n) − 0.7 h are reported.  The test applies only to random-like
+      sampling ("Mesh-like or random-like sampling" above; the numbers here
+      were measured with the CV rule, nearest-neighbour CV ≥ 0.35): a mesh
+      has no chance gaps, and a one-vertex hole in a range grid is a real
+      hole.  Measured: fandisk 1M with three 8h
       holes F1 0.529 → 0.923, cube 200K 0.719 → 0.857 (a fixed 4h: 0.923 /
       0.857); closed random sphere 1M 339 false detections → 0, closed
       20K sphere / cube 10 / 6 → 0; the 11 benchmark cases mean F1 0.820 →
@@ -1725,7 +1765,7 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
     p = resolve_params(PARAMS_HOLES, dict(
         min_shift=min_shift, rim_width=rim_width, extent_width=extent_width,
         max_variation=max_variation, min_support=min_support,
-        min_radius=min_radius, row_gap=row_gap, n_scales=n_scales, k_min=k_min,
+        min_radius=min_radius, row_angle=row_angle, n_scales=n_scales, k_min=k_min,
         k_max=k_max,
         n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,

@@ -10,7 +10,7 @@ from baselines.datasets import add_noise, cut_holes, make_shape
 from filters import features as F
 from filters._validation import InvalidParameterError, PointCloudError
 from filters.metrics import precision_recall_f1
-from filters.neighbors import average_spacing, centered, knn, weighted_pca
+from filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
 
 from tests.conftest import random_rotation
 
@@ -534,32 +534,65 @@ def _grid_plane(m=60):
     return pts, edge
 
 
-def test_outer_row_known_answer():
-    # the two outermost columns of a grid's left border (away from the
-    # corners): the outer one is kept, the one behind it is not
+def test_border_gap_known_answer():
+    # a grid's straight border leaves half the plane empty (π), its corner
+    # three quarters (3π/2); inside, the 15 neighbours are 45° apart at most
     pts, _ = _grid_plane()
-    det = np.flatnonzero((pts[:, 0] <= 1) & (pts[:, 1] >= 5) & (pts[:, 1] <= 54))
-    h = average_spacing(pts)
-    np.testing.assert_array_equal(F.outer_row(pts, det, h, 0.6), pts[det, 0] == 0)
-    # a gap larger than the row spacing (1 = 0.87h) hides nothing
-    assert F.outer_row(pts, det, h, 1.0).all()
-    assert F.outer_row(pts, det[:1], h, 0.6).all()
+    m = int(round(np.sqrt(len(pts))))
+    side = np.flatnonzero((pts[:, 0] == 0) & (pts[:, 1] == 30))
+    corner = np.flatnonzero((pts[:, 0] == 0) & (pts[:, 1] == 0))
+    inner = np.flatnonzero((pts[:, 0] == 30) & (pts[:, 1] == 30))
+    gap = F.border_gap(pts, np.concatenate([side, corner, inner]), 16)
+    np.testing.assert_allclose(gap[:2], [np.pi, 1.5 * np.pi], atol=1e-9)
+    assert gap[2] <= np.pi / 4 + 1e-9
+    assert m == 60 and len(F.border_gap(pts, np.array([], dtype=int), 16)) == 0
 
 
-def test_row_gap_keeps_the_outer_row_of_regular_clouds_only():
-    # grid plane: without the outer-row test the band is two rows (measured
+def test_largest_angle_gap_is_rotation_invariant():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(5, 12, 3))
+    x[..., 2] = 0.0
+    x[:, :, 0] = np.abs(x[:, :, 0])          # a half-plane: gap >= π
+    nrm = np.tile([0.0, 0.0, 1.0], (5, 1))
+    g0 = F.largest_angle_gap(x, nrm)
+    R = random_rotation(5)
+    g1 = F.largest_angle_gap(x @ R.T, nrm @ R.T)
+    np.testing.assert_allclose(g0, g1, atol=1e-9)
+    assert (g0 >= np.pi - 1e-9).all()
+
+
+def _graded_grid(m: int = 60):
+    """A grid plane whose row and column spacings grow 1 → 4 across it (a
+    nearest-neighbour CV like a graded mesh's, but no two samples close)."""
+    xs = np.cumsum(np.linspace(1.0, 4.0, m)) - 1.0
+    u, v = np.meshgrid(xs, xs)
+    pts = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)])
+    edge = ((u == xs[0]) | (u == xs[-1]) | (v == xs[0]) | (v == xs[-1])).ravel()
+    return pts, edge
+
+
+def test_row_angle_keeps_the_border_row_of_mesh_like_clouds_only():
+    # grid plane: without the row test the band is two rows (measured
     # precision 0.53 against the border row), with it exactly the row
     pts, edge = _grid_plane()
     on = F.detect_hole_boundaries(pts, seed=0)
-    off = F.detect_hole_boundaries(pts, seed=0, row_gap=None)
+    off = F.detect_hole_boundaries(pts, seed=0, row_angle=None)
     assert not (on.mask & ~off.mask).any()
     assert precision_recall_f1(off.mask, edge)[0] < 0.7
     np.testing.assert_array_equal(on.mask, edge)
-    # a random sampling is irregular: the test does not apply
+    # a graded grid is mesh-like too, although its nearest-neighbour CV is
+    # that of the irregular meshes (above F._REGULAR_CV)
+    pts, edge = _graded_grid()
+    d, _ = build_tree(pts).query(pts, k=2)
+    assert d[:, 1].std() / d[:, 1].mean() > F._REGULAR_CV
+    np.testing.assert_array_equal(F.detect_hole_boundaries(pts, seed=0).mask, edge)
+    off = F.detect_hole_boundaries(pts, seed=0, row_angle=None)
+    assert precision_recall_f1(off.mask, edge)[0] < 0.7
+    # a random sampling is random-like: the test does not apply
     disc = make_shape("disc", n=8000, seed=0)
     np.testing.assert_array_equal(F.detect_hole_boundaries(disc.points, seed=0).mask,
                                   F.detect_hole_boundaries(disc.points, seed=0,
-                                                           row_gap=None).mask)
+                                                           row_angle=None).mask)
 
 
 def test_flatness_gate_keeps_rims_across_creases():
