@@ -639,6 +639,13 @@ def test_holes_deterministic_and_invariant(disc):
     assert (c.mask == a.mask).mean() > 0.95
 
 
+def test_border_row_is_scale_and_rigid_motion_invariant():
+    # the mesh-like path (close-pair fraction, angular-gap row test): a
+    # rotated, shrunk and shifted grid gives the same border row
+    pts, edge = _graded_grid()
+    moved = 0.003 * pts @ random_rotation(7).T + np.array([5.0, -2.0, 1.0])
+    np.testing.assert_array_equal(F.detect_hole_boundaries(moved, seed=1).mask, edge)
+
 # --------------------------------------------------------------- bad input
 @pytest.mark.parametrize("fn", [F.detect_sharp_features, F.detect_hole_boundaries])
 def test_bad_points(fn, rng):
