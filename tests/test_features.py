@@ -561,6 +561,26 @@ def test_largest_angle_gap_is_rotation_invariant():
     assert (g0 >= np.pi - 1e-9).all()
 
 
+def test_track_border_known_answer():
+    # two candidate chains 1h-stepped along x, 5h apart; a seed on the first
+    # keeps it whole, the second (no seed) is dropped, a lone seed stays
+    x = np.arange(10, dtype=float)
+    pts = np.concatenate([np.column_stack([x, np.zeros(10), np.zeros(10)]),
+                          np.column_stack([x, np.full(10, 5.0), np.zeros(10)]),
+                          [[30.0, 0.0, 0.0]]])
+    cand = np.ones(21, dtype=bool)
+    cand[20] = False
+    seeds = np.zeros(21, dtype=bool)
+    seeds[[3, 20]] = True
+    out = F.track_border(pts, seeds, cand, 1.5)
+    np.testing.assert_array_equal(out, np.r_[np.ones(10, bool), np.zeros(10, bool), True])
+    # a gap wider than the link cuts the chain
+    cand[6] = False
+    np.testing.assert_array_equal(np.flatnonzero(F.track_border(pts, seeds, cand, 1.5)),
+                                  [0, 1, 2, 3, 4, 5, 20])
+    assert not F.track_border(pts, np.zeros(21, dtype=bool), cand, 1.5).any()
+
+
 def _graded_grid(m: int = 60):
     """A grid plane whose row and column spacings grow 1 → 4 across it (a
     nearest-neighbour CV like a graded mesh's, but no two samples close)."""
