@@ -305,8 +305,8 @@ def _band_section(rows, methods) -> list[str]:
             "(both meshes: at most 0.4 % of their vertices closer than 0.3 x the "
             "median spacing to their nearest neighbour, against about 6 % for a "
             "random sampling) ours keeps the border row, the detections that leave "
-            "an empty angle > 90° around them (`row_angle`, see "
-            "`detect_hole_boundaries` Notes).", "",
+            "an empty angle > 90° around them, and follows it along itself "
+            "(`row_angle`, see `detect_hole_boundaries` Notes).", "",
             harness.markdown_table(
                 ["data", "n"] + [f"{m} F1 (row)" for m in methods]
                 + [f"{m} F1 (band)" for m in methods], body, fmt="{:.3f}"), ""]
