@@ -187,10 +187,12 @@ def multiscale_features(points: np.ndarray, ks: np.ndarray, *, kind: str,
 def _multiscale(points, ks, kind, h, tree):
     """``multiscale_features``, the spacing h it used, (``kind="sharp"``) the
     PCA normals of the scale nearest 16 points (``kind="hole"``: the
-    ``strip_extent`` of every point at the largest scale, in h, and the
-    surface variation λ0/Σλ of the smallest scale) and the
+    ``strip_extent`` of every point at the largest scale, in h, the
+    surface variation λ0/Σλ of the smallest scale and the indices of the
+    smallest scale's neighbours) and the
     coefficient of variation of the nearest-neighbour distance (sampling
-    regularity, see ``detect_sharp_features`` Notes)."""
+    regularity, see ``detect_sharp_features`` Notes) with, for the hole kind,
+    the fraction of close pairs (see ``detect_hole_boundaries`` Notes)."""
     n = len(points)
     ks = np.asarray(ks, dtype=np.int64)
     tree = build_tree(points) if tree is None else tree
@@ -206,6 +208,9 @@ def _multiscale(points, ks, kind, h, tree):
     normals = np.empty((n, 3)) if kind == "sharp" else None  # noqa: NPY-empty -- all rows set
     extent = np.empty(n) if kind == "hole" else None  # noqa: NPY-empty -- all rows set
     variation = np.empty(n) if kind == "hole" else None  # noqa: NPY-empty -- all rows set
+    # the k_min nearest neighbours of every point (hole kind: the border-row test)
+    near = (np.empty((n, int(ks[0])), dtype=np.int32)  # noqa: NPY-empty -- all rows set
+            if kind == "hole" else None)
     starts = np.concatenate([[0], ks[:-1]])
     kf = ks.astype(np.float64)
     corr = kf / np.maximum(kf - 1.0, 1.0)                       # 1/(k−1) of (7.1)
@@ -218,6 +223,8 @@ def _multiscale(points, ks, kind, h, tree):
         if own_h:
             hsum += float(dist[:, 1:SPACING_K + 1].sum())
         nn1[s:e] = dist[:, 1]
+        if near is not None:
+            near[s:e] = idx[:, :ks[0]]
         x = points[idx]                                         # (c, k, 3)
         x -= points[s:e, None, :]
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
@@ -269,7 +276,7 @@ def _multiscale(points, ks, kind, h, tree):
         # the hole kind returns the strip extent (in h) in the normals' slot,
         # and the fraction of close pairs (random-like sampling) with the CV
         close = float(np.mean(nn1 < _CLOSE_RATIO * np.median(nn1)))
-        return out, float(h), (extent, variation), (cv, close)
+        return out, float(h), (extent, variation, near), (cv, close)
     return out, float(h), normals, (cv, None)
 
 
@@ -536,8 +543,7 @@ def track_border(points: np.ndarray, seeds: np.ndarray, candidates: np.ndarray,
     ----------
     points : (n, 3) float
     seeds : (n,) bool
-        Points certainly on the border (a subset of the candidates is not
-        required: seeds are candidates too).
+        Points certainly on the border (they count as candidates too).
     candidates : (n,) bool
         Points that may be on it.
     link : float
@@ -623,36 +629,27 @@ def largest_angle_gap(offsets: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return np.maximum(np.diff(ang, axis=1).max(axis=1, initial=0.0), wrap)
 
 
-def border_gap(points: np.ndarray, det: np.ndarray, k: int, *, tree=None) -> np.ndarray:
-    """Largest angular gap (radians) of the ``k`` nearest neighbours of each
-    detected point, around its PCA normal over the same neighbours
-    (``largest_angle_gap``).
+def border_gap(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Largest angular gap (radians) of each point's nearest neighbours,
+    around their PCA normal (``largest_angle_gap``).
 
     Parameters
     ----------
     points : (n, 3) float
         The whole cloud.
-    det : (m,) int
-        Indices of the points to test.
-    k : int
-        Neighbourhood size, the point itself included.
-    tree : cKDTree, optional
-        Tree of ``points``.
+    neighbours : (m, k) int
+        Each tested point's k nearest neighbours, sorted by distance: column
+        0 is the point itself (as ``knn`` returns them).
 
     Returns
     -------
     (m,) float
     """
-    m = len(det)
+    m = len(neighbours)
     out = np.zeros(m)
-    if m == 0:
-        return out
-    tree = build_tree(points) if tree is None else tree
-    k = min(int(k), len(points))
     for s in range(0, m, CHUNK):
         e = min(m, s + CHUNK)
-        _, idx = knn(points, k, tree=tree, query=points[det[s:e]])
-        x = points[idx[:, 1:]] - points[det[s:e], None, :]
+        x = points[neighbours[s:e, 1:]] - points[neighbours[s:e, 0], None, :]
         xc = x - x.mean(axis=1, keepdims=True)
         _, nrm = sym3_eig(np.einsum("cki,ckj->cij", xc, xc))
         out[s:e] = largest_angle_gap(x, nrm)
@@ -935,8 +932,7 @@ PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
           "seen around its normal, leave an empty angle wider than this (90 = PCL's "
           "boundary criterion), and the points with such an angle chained to a kept "
           "one (steps <= 1.5h) are added (see Notes).  Random-like clouds are not "
-          "affected.  "
-          "Empty = off.", low=0.0, high=360.0, unit="deg", optional=True)))
+          "affected.  Empty = off.", low=0.0, high=360.0, unit="deg", optional=True)))
 #: alias used by the bridge convention (one ``PARAMS`` per module)
 PARAMS = PARAMS_SHARP
 
@@ -1019,7 +1015,8 @@ def _score_stage(points, normals, p: dict, func: str, kind: str) -> dict:
                 nnz=nnz, resid=resid, D=D, nn_cv=nn_cv, close=close,
                 nrm=nrm if kind == "sharp" else None,
                 extent=nrm[0] if kind == "hole" else None,
-                variation=nrm[1] if kind == "hole" else None)
+                variation=nrm[1] if kind == "hole" else None,
+                near=nrm[2] if kind == "hole" else None)
 
 
 def _otsu_scale(p: dict) -> float:
@@ -1113,8 +1110,7 @@ def _select(st: dict, p: dict, func: str, kind: str) -> DetectionResult:
         # empty side; the row is then followed along itself (see
         # detect_hole_boundaries Notes)
         n_det = int(mask.sum())
-        row = border_gap(pts, np.arange(len(pts)), p["k_min"], tree=tree) > np.radians(
-            p["row_angle"])
+        row = border_gap(pts, st["near"]) > np.radians(p["row_angle"])
         mask &= row
         n_row = int(mask.sum())
         mask = track_border(pts, mask, row, _TRACK_LINK * h)
@@ -1559,7 +1555,8 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
         Border row (see Notes): on a mesh-like sampling a detected point is
         kept only if its ``k_min`` nearest neighbours, projected on their
         tangent plane, leave an empty angle wider than this many degrees
-        around it (``border_gap``), and the other points with such an angle
+        around it (``border_gap``, on the neighbours of the k-NN query of the
+        scales), and the other points with such an angle
         that are chained to a kept one (steps ≤ 1.5h) are added
         (``track_border``).  Random-like clouds are not affected.  None: off.
     n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
@@ -1722,8 +1719,8 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
       border edges 0.7-2.2h, its second row 0.35-1.1h inside, precision
       0.50 for ours and the angle gap alike).  Sensitivity, mean over the
       six: 72° / 90° / 108° / 135°: 0.775 / 0.818 / 0.826 / 0.769; the
-      default is PCL's value, not the best one here.  Random-like clouds are not tested:
-      their truth is a band (about two rows at 1.5h), and the test would
+      default is PCL's value, not the best one here.  Random-like clouds
+      are not tested: their truth is a band (about two rows at 1.5h), and the test would
       keep its outer edge only (seven random-sample cases, mean 0.880 →
       0.800).
     * Border tracking (not in the thesis): the code-length rule misses

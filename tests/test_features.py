@@ -542,10 +542,11 @@ def test_border_gap_known_answer():
     side = np.flatnonzero((pts[:, 0] == 0) & (pts[:, 1] == 30))
     corner = np.flatnonzero((pts[:, 0] == 0) & (pts[:, 1] == 0))
     inner = np.flatnonzero((pts[:, 0] == 30) & (pts[:, 1] == 30))
-    gap = F.border_gap(pts, np.concatenate([side, corner, inner]), 16)
+    _, nb = knn(pts, 16, query=pts[np.concatenate([side, corner, inner])])
+    gap = F.border_gap(pts, nb)
     np.testing.assert_allclose(gap[:2], [np.pi, 1.5 * np.pi], atol=1e-9)
     assert gap[2] <= np.pi / 4 + 1e-9
-    assert m == 60 and len(F.border_gap(pts, np.array([], dtype=int), 16)) == 0
+    assert m == 60 and len(F.border_gap(pts, np.zeros((0, 16), dtype=int))) == 0
 
 
 def test_largest_angle_gap_is_rotation_invariant():
