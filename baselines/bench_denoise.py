@@ -10,7 +10,7 @@ Protocol
 --------
 * Models: cube, octahedron, block, fandisk, trim-star, twelve, rocker arm (from
   ``../shared/data/models`` when present, else the synthetic parts of
-  ``baselines.datasets``) and pymeshlab's bunny.  Meshes are sampled uniformly by
+  ``pcprep.baselines.datasets``) and pymeshlab's bunny.  Meshes are sampled uniformly by
   area (``sample_mesh_surface``, crease-aware normals), so every point has an
   exact ground-truth position and normal.
 * Noise (units of the clean sample's h): Gaussian σ = 0.1/0.2/0.3 along the
@@ -35,11 +35,11 @@ import time
 
 import numpy as np
 
-from baselines import harness
-from baselines.datasets import (add_noise, load_sample_mesh, load_shared_model, make_shape,
+from pcprep.baselines import harness
+from pcprep.baselines.datasets import (add_noise, load_sample_mesh, load_shared_model, make_shape,
                                 sample_mesh_surface)
-from filters.metrics import mad_degrees, mse_symmetric, snr_db
-from filters.neighbors import average_spacing, pca_normals
+from pcprep.filters.metrics import mad_degrees, mse_symmetric, snr_db
+from pcprep.filters.neighbors import average_spacing, pca_normals
 
 log = logging.getLogger("pcprep")
 
@@ -211,16 +211,16 @@ def score(gt_p, gt_n, P, N=None) -> dict:
 
 def _call(method: str, noisy, nin, prm: dict):
     if method == "APSS":
-        from baselines import meshlab
+        from pcprep.baselines import meshlab
         return meshlab.apss(noisy, nin, **prm)
     if method == "RIMLS":
-        from baselines import meshlab
+        from pcprep.baselines import meshlab
         return meshlab.rimls(noisy, nin, **prm)
     if method == "bilateral":
-        from baselines import cgal
+        from pcprep.baselines import cgal
         return cgal.bilateral(noisy, nin, **prm)
     if method == "jet":
-        from baselines import cgal
+        from pcprep.baselines import cgal
         return cgal.jet_smooth(noisy, **prm), None
     raise ValueError(method)
 
@@ -245,7 +245,7 @@ def grid_eval(method: str, noisy, nin, gt_p, gt_n, grid: list) -> list:
 
 def run_ours(noisy, gt_p, gt_n) -> dict:
     """pcprep with its defaults, scored (meant for a child)."""
-    from filters.denoise import denoise_l1_tv
+    from pcprep.filters.denoise import denoise_l1_tv
 
     t = time.perf_counter()
     r = denoise_l1_tv(noisy)
@@ -457,19 +457,19 @@ def _markdown(data: dict) -> str:
 # speed benchmark
 
 def _speed_ours(points) -> int:
-    from filters.denoise import denoise_l1_tv
+    from pcprep.filters.denoise import denoise_l1_tv
 
     return int(len(denoise_l1_tv(points).points))
 
 
 def _speed_jet(points) -> int:
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     return int(len(cgal.jet_smooth(points, k=24)))
 
 
 def _speed_rimls(points, normals) -> int:
-    from baselines import meshlab
+    from pcprep.baselines import meshlab
 
     return int(len(meshlab.rimls(points, normals)[0]))
 

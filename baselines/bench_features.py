@@ -23,10 +23,10 @@ import time
 
 import numpy as np
 
-from baselines import classic, datasets, harness, meshes
-from baselines._sample import _segment_distance
-from filters import features as F
-from filters.metrics import precision_recall_f1
+from pcprep.baselines import classic, datasets, harness, meshes
+from pcprep.baselines._sample import _segment_distance
+from pcprep.filters import features as F
+from pcprep.filters.metrics import precision_recall_f1
 
 log = logging.getLogger("pcprep")
 

@@ -19,7 +19,7 @@ accumulation, and with the thesis' product measure (5.7).
 
 Baselines: surface variation λ0/Σλ of 16-NN PCA (thesis 2.5); curvature
 magnitude √(k1²+k2²) of the same radius-3h quadric fit the filter uses; |K|;
-the SDBS global score Sf of chapter 6 (``filters.simplify.simplify_sdbs(...).score``)
+the SDBS global score Sf of chapter 6 (``pcprep.filters.simplify.simplify_sdbs(...).score``)
 when that module is importable.
 
 ``run`` writes reports/saliency.md/.json and reports/img/saliency_*.png;
@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import harness
-from baselines.datasets import add_noise, load_shared_model, make_shape
-from filters.metrics import roc_auc
-from filters.neighbors import build_tree, knn, weighted_pca
-from filters.saliency import (local_frames_and_curvature, neighbourhoods,
+from pcprep.baselines import harness
+from pcprep.baselines.datasets import add_noise, load_shared_model, make_shape
+from pcprep.filters.metrics import roc_auc
+from pcprep.filters.neighbors import build_tree, knn, weighted_pca
+from pcprep.filters.saliency import (local_frames_and_curvature, neighbourhoods,
                               saliency_sparse_mdl)
 
 log = logging.getLogger("pcprep")
@@ -67,9 +67,9 @@ BAND_METHODS = ("ours", "ours (mean accumulation)", "surface variation",
 
 def _sdbs_score_fn():
     """The ch.6 SDBS global score Sf (6.10) as ``fn(points) -> (n,)``, or None when
-    ``filters.simplify`` is not available."""
+    ``pcprep.filters.simplify`` is not available."""
     try:
-        from filters.simplify import simplify_sdbs
+        from pcprep.filters.simplify import simplify_sdbs
     except ImportError:
         return None
 
@@ -275,7 +275,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "variation = λ0/Σλ of 16-NN PCA; curvature "
           "magnitude = √(k1²+k2²) and |K| of the radius-3h quadric fit the filter itself "
           "uses; SDBS global score = Sf (6.10) of `simplify_sdbs` (ch. 6, defaults)"
-          + ("." if sdbs else "— not available (`filters.simplify` not importable)."),
+          + ("." if sdbs else "— not available (`pcprep.filters.simplify` not importable)."),
           "",
           _auc_table(rows), "",
           "Mean AUC over the CAD solids:", ""]

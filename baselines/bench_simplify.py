@@ -13,12 +13,12 @@ Protocol
   fandisk, when present.  The clouds are the mesh vertices.
 * Rates 5 / 10 / 20 / 50 %: target count = round(rate · n).  SDBS, Poisson-disk
   (MeshLab's radius bisection, 0.5 % tolerance), grid and HCS (searched to the
-  count by ``baselines.cgal``) and random hit it; MeshLab's simplified cloud
+  count by ``pcprep.baselines.cgal``) and random hit it; MeshLab's simplified cloud
   cannot be given a count (see BASELINES.md) and WLOP outputs rate % of n new
   points (not a subset).  The kept count of every method is recorded.
 * Metric (6.12)-(6.13): Δmax / Δavg = max / mean distance of every original
   point to the PCA plane of its 10 nearest simplified points
-  (``filters.metrics.simplification_error``), in model units.
+  (``pcprep.filters.metrics.simplification_error``), in model units.
 * Every method runs in its own fresh process (``harness.run_isolated``), so a
   crash is recorded, never fatal; SDBS runs with its defaults, never tuned per
   model.
@@ -32,10 +32,10 @@ import time
 
 import numpy as np
 
-from baselines import harness
-from baselines.datasets import (load_sample_mesh, load_shared_model, make_shape,
+from pcprep.baselines import harness
+from pcprep.baselines.datasets import (load_sample_mesh, load_shared_model, make_shape,
                                 sample_mesh_surface)
-from filters.metrics import simplification_error
+from pcprep.filters.metrics import simplification_error
 
 log = logging.getLogger("pcprep")
 
@@ -65,44 +65,44 @@ TIMEOUT = 900.0
 # module-level so that harness.run_isolated can call them in a fresh process;
 # each returns the simplified points and whether they are a subset of the input
 def _sdbs(points, count, seed, kwargs=None):
-    from filters.simplify import simplify_sdbs
+    from pcprep.filters.simplify import simplify_sdbs
 
     res = simplify_sdbs(points, count=count, seed=seed, **(kwargs or {}))
     return points[res.keep_idx]
 
 
 def _poisson(points, count, seed):
-    from baselines import meshlab
+    from pcprep.baselines import meshlab
 
     return points[meshlab.poisson_disk_exact(points, count)]
 
 
 def _ml_simplified(points, count, seed):
-    from baselines import meshlab
+    from pcprep.baselines import meshlab
 
     return points[meshlab.simplified_cloud(points, count)]
 
 
 def _grid(points, count, seed):
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     return points[cgal.grid_simplify_count(points, count)]
 
 
 def _hcs(points, count, seed):
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     return points[cgal.hierarchy_simplify_count(points, count)]
 
 
 def _wlop(points, count, seed):
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     return cgal.wlop(points, 100.0 * count / len(points))
 
 
 def _random(points, count, seed):
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     return points[cgal.random_simplify(points, count / len(points), seed=seed)]
 
@@ -339,8 +339,8 @@ def _timed(fn, *args, **kwargs):
 
 
 def _speed_sdbs(points, ratio, compiled=True):
-    from filters import _kernels
-    from filters.simplify import simplify_sdbs
+    from pcprep.filters import _kernels
+    from pcprep.filters.simplify import simplify_sdbs
 
     _kernels.ENABLED = compiled and _kernels.HAVE_NUMBA
     return _timed(lambda: simplify_sdbs(points, ratio=ratio).keep_idx)
@@ -354,13 +354,13 @@ def _warm_kernels():
 
 
 def _speed_poisson(points, count):
-    from baselines import meshlab
+    from pcprep.baselines import meshlab
 
     return _timed(meshlab.poisson_disk_exact, points, count)
 
 
 def _speed_hcs(points):
-    from baselines import cgal
+    from pcprep.baselines import cgal
 
     # one call at CGAL's defaults (the count search would call it repeatedly)
     return _timed(cgal.hierarchy_simplify, points)

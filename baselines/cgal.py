@@ -20,8 +20,8 @@ import math
 
 import numpy as np
 
-from filters._validation import InvalidParameterError, as_normals, as_points
-from filters.neighbors import centered
+from pcprep.filters._validation import InvalidParameterError, as_normals, as_points
+from pcprep.filters.neighbors import centered
 
 log = logging.getLogger("pcprep")
 
@@ -471,7 +471,7 @@ def average_spacing_cgal(points, k: int = 6) -> float:
 
     CGAL queries k + 1 neighbours including the point itself and divides the
     sum of distances by k + 1, so it equals ``k / (k + 1)`` times pcprep's h
-    (``filters.neighbors.average_spacing``: mean distance to the k nearest
+    (``pcprep.filters.neighbors.average_spacing``: mean distance to the k nearest
     OTHER points); multiply by ``(k + 1) / k`` to compare.
     """
     func = "average_spacing_cgal"

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from filters._validation import InvalidParameterError, as_points, check_param, check_spread
-from filters.features import largest_angle_gap, otsu_threshold
-from filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
+from pcprep.filters._validation import InvalidParameterError, as_points, check_param, check_spread
+from pcprep.filters.features import largest_angle_gap, otsu_threshold
+from pcprep.filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
 
 #: name -> function, for the benchmark
 SHARP_METHODS: dict = {}

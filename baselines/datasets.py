@@ -26,7 +26,7 @@ Conventions
   creases of "fandisk").
 * ``rim`` marks points within ``rim_width`` (default 1.5) h of a surface boundary
   (open shapes, cut holes); closed shapes get an all-False ``rim``.
-* h is :func:`filters.neighbors.average_spacing` of the returned points.
+* h is :func:`pcprep.filters.neighbors.average_spacing` of the returned points.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from filters._validation import (
+from pcprep.filters._validation import (
     InvalidParameterError,
     PointCloudError,
     as_normals,
@@ -48,7 +48,7 @@ from filters._validation import (
     check_param,
     check_seed,
 )
-from filters.neighbors import average_spacing
+from pcprep.filters.neighbors import average_spacing
 
 from ._sample import Sample, _segment_distance
 
@@ -783,4 +783,6 @@ from .meshes import (  # noqa: E402,F401
     pymeshlab_sample_dir,
     sample_mesh_surface,
     shared_models_root,
+    use_models_root,
+    models_hint,
 )

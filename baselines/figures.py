@@ -118,7 +118,7 @@ def _mask_colours(mask, truth=None):
 
 
 def _spec(command):
-    from meshlab_bridge import registry
+    from pcprep.meshlab_bridge import registry
 
     return registry.get(command)
 
@@ -127,10 +127,10 @@ def denoise_figures(img: Path, seed: int = 0, n: int = 8000) -> list[tuple[str, 
     """Noisy / ours / APSS / RIMLS / CGAL bilateral on a noisy fandisk-like
     part, coloured by distance to the clean point (in h); plus ball-pivoting
     reconstructions of the noisy and denoised clouds."""
-    from baselines import cgal, meshlab
-    from baselines.datasets import add_noise, make_shape
-    from baselines.harness import run_isolated
-    from filters.neighbors import orient_normals_mst, pca_normals
+    from pcprep.baselines import cgal, meshlab
+    from pcprep.baselines.datasets import add_noise, make_shape
+    from pcprep.baselines.harness import run_isolated
+    from pcprep.filters.neighbors import orient_normals_mst, pca_normals
 
     clean = make_shape("fandisk", n=n, seed=seed)
     noisy = add_noise(clean.points, clean.normals, sigma=0.3, h=clean.h, kind="normal", seed=seed)
@@ -170,9 +170,9 @@ def denoise_figures(img: Path, seed: int = 0, n: int = 8000) -> list[tuple[str, 
 
 def simplify_figures(img: Path, seed: int = 0) -> list[tuple[str, Path]]:
     """pcprep SDBS beside MeshLab Poisson-disk at 5 % and 20 % on the bunny."""
-    from baselines import meshlab
-    from baselines.datasets import load_sample_mesh
-    from baselines.harness import run_isolated
+    from pcprep.baselines import meshlab
+    from pcprep.baselines.datasets import load_sample_mesh
+    from pcprep.baselines.harness import run_isolated
 
     bunny = load_sample_mesh("bunny")
     pts = bunny.points
@@ -194,7 +194,7 @@ def simplify_figures(img: Path, seed: int = 0) -> list[tuple[str, Path]]:
 def detection_figures(img: Path, seed: int = 0, n: int = 12000) -> list[tuple[str, Path]]:
     """Detected sharp features (fandisk, clean and 0.3h) and hole rims (a
     sphere with cut holes).  Red = correct, orange = false positive, blue = miss."""
-    from baselines.datasets import add_noise, cut_holes, make_shape
+    from pcprep.baselines.datasets import add_noise, cut_holes, make_shape
 
     feat = _spec("features")
     part = make_shape("fandisk", n=n, seed=seed)

@@ -7,7 +7,7 @@ peak memory, and write Markdown + JSON reports.
 
 Typical use in a bench module::
 
-    from baselines import harness, meshlab
+    from pcprep.baselines import harness, meshlab
     out = harness.measure(meshlab.rimls, points, normals)      # Outcome
     if out.ok:
         smoothed, _ = out.value
@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from meshlab_bridge.convert import file_mode
+from pcprep.meshlab_bridge.convert import file_mode
 
 log = logging.getLogger("pcprep")
 

@@ -16,14 +16,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from filters._validation import (
+from pcprep.filters._validation import (
     PointCloudError,
     as_points,
     check_choice,
     check_param,
     check_seed,
 )
-from filters.neighbors import average_spacing
+from pcprep.filters.neighbors import average_spacing
 
 log = logging.getLogger("pcprep")
 
@@ -344,13 +344,58 @@ def load_sample_mesh(name: str, *, sharp_angle_deg: float = 30.0) -> Sample:
                           name=name)
 
 
+#: set by ``use_models_root`` (``pcprep report --models``); wins over the search
+_MODELS_ROOT: pathlib.Path | None = None
+
+
+def use_models_root(path) -> pathlib.Path:
+    """Make ``path`` the shared model folder for this process (it must exist)."""
+    global _MODELS_ROOT
+    root = pathlib.Path(path).expanduser().resolve()
+    if not root.is_dir():
+        raise FileNotFoundError(f"models folder {root} does not exist")
+    _MODELS_ROOT = root
+    return root
+
+
+def _candidates() -> list[pathlib.Path]:
+    # the current folder and its parents first: an installed (non-editable)
+    # package lives in site-packages, so only the folder the user runs from can
+    # say which checkout the report belongs to; the source tree last
+    here = pathlib.Path.cwd().resolve()
+    out = [d / "shared" / "data" / "models" for d in (here, *here.parents)]
+    out.append(pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+               / "models")
+    return out
+
+
 def shared_models_root() -> pathlib.Path:
-    """Root of the optional shared model folder: ``$PCPREP_SHARED_MODELS`` or
-    ``<repo>/../shared/data/models``."""
+    """Root of the optional shared model folder.
+
+    In order: the folder given to ``use_models_root`` (``pcprep report
+    --models``), ``$PCPREP_SHARED_MODELS``, then the first existing
+    ``shared/data/models`` in the current folder or one of its parents (so
+    ``../shared/data/models`` is found when run from a checkout beside it), then
+    beside the source tree.  When none exists, the first candidate is returned
+    (loads then find nothing; ``models_hint`` says how to point at the folder).
+    """
+    if _MODELS_ROOT is not None:
+        return _MODELS_ROOT
     env = os.environ.get("PCPREP_SHARED_MODELS")
     if env:
         return pathlib.Path(env)
-    return pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "models"
+    cands = _candidates()
+    return next((c for c in cands if c.is_dir()), cands[0])
+
+
+def models_hint() -> str | None:
+    """A sentence for the log when no shared model folder is found, else None."""
+    root = shared_models_root()
+    if root.is_dir():
+        return None
+    return (f"no shared model folder at {root}: the full benchmarks use generated and "
+            "pymeshlab-shipped data only; point them at the models with "
+            "pcprep report --models DIR or PCPREP_SHARED_MODELS=DIR")
 
 
 def load_shared_model(relpath: str, *, root=None, required: bool = False,

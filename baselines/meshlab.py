@@ -8,7 +8,7 @@ functions on NumPy arrays.
 Every runner is a module-level function taking and returning float64 arrays,
 so that benches can run it crash-isolated::
 
-    from baselines import harness, meshlab
+    from pcprep.baselines import harness, meshlab
     out = harness.measure(meshlab.rimls, points, normals)
 
 Some of these filters segfault on inputs or parameter combinations they do not
@@ -25,8 +25,8 @@ import logging
 
 import numpy as np
 
-from filters._validation import InvalidParameterError, as_normals, as_points
-from filters.neighbors import centered
+from pcprep.filters._validation import InvalidParameterError, as_normals, as_points
+from pcprep.filters.neighbors import centered
 
 log = logging.getLogger("pcprep")
 
@@ -100,7 +100,7 @@ def apss(points, normals, filterscale: float = 2.0, sphericalparameter: float = 
     normals : (n, 3) float
         CONSISTENTLY ORIENTED normals (required: with zero normals MeshLab returns
         NaN everywhere, half-flipped normals ruin the fit).  The benches use
-        ``filters.neighbors.pca_normals`` (PCA + MST orientation).
+        ``pcprep.filters.neighbors.pca_normals`` (PCA + MST orientation).
     filterscale : float, default=2.0
         Support radius as a multiple of MeshLab's per-point radius d_16/2 (so 2
         is about the distance to the 16th neighbour); relative to LOCAL spacing.

@@ -38,7 +38,7 @@ def _run_step(family: str, speed: bool, quick: bool, seed: int, out_dir: str) ->
     name = f"speed_{family}" if speed else family
     t0 = time.perf_counter()
     try:
-        mod = import_module(f"baselines.bench_{family}")
+        mod = import_module(f"pcprep.baselines.bench_{family}")
         fn = mod.run_speed if speed else mod.run
         log.info("report: running %s%s", name, " (quick)" if quick else "")
         fn(quick=quick, seed=seed, out_dir=out_dir)
@@ -67,7 +67,7 @@ def _demote(md: str, levels: int = 1) -> str:
 
 def _thesis_section() -> str:
     try:
-        tables = import_module("baselines.thesis_tables")
+        tables = import_module("pcprep.baselines.thesis_tables")
     except ImportError:
         return ""
     names = list(tables.TABLES)
@@ -85,14 +85,22 @@ def _thesis_section() -> str:
 
 
 def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
-          assemble_only: bool = False) -> Path:
+          assemble_only: bool = False, models: str | None = None) -> Path:
     """Run every harness and write ``index.md`` / ``index.html`` into ``out_dir``.
 
     With ``assemble_only`` no harness is re-run: the index is assembled from
     the per-harness reports already in ``out_dir`` (those missing are shown as
-    missing) and only the pictures are rendered.  Returns the path of ``index.md``.
+    missing) and only the pictures are rendered.  ``models`` is the folder of the
+    public models (see ``datasets.shared_models_root`` for where it is looked up
+    otherwise).  Returns the path of ``index.md``.
     """
-    from . import figures
+    from . import datasets, figures
+
+    if models is not None:
+        datasets.use_models_root(models)
+    hint = datasets.models_hint()
+    if hint and not quick:
+        log.warning("report: %s", hint)
 
     out = resolve_out_dir(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)

@@ -43,7 +43,7 @@ highlights of the thesis are not kept.
 
 Model names are lower-case snake_case spellings of the thesis' names
 (``"rocker_arm"``, ``"trim_star"``, ``"maxplank"``); :data:`DATASET_NAME` maps
-those that ``baselines.datasets.make_shape`` imitates to its shape names.
+those that ``pcprep.baselines.datasets.make_shape`` imitates to its shape names.
 
 The thesis has no precision / recall table for chapter 7 (its feature and hole
 results are shown only as figures), so none is transcribed.
@@ -73,7 +73,7 @@ __all__ = [
 #: Text extraction the line numbers in ``source`` and the row comments refer to.
 THESIS_FILE = "/work/shared/thesis/000_5cf9d2b526292ac8.txt"
 
-#: Thesis model name -> ``baselines.datasets.make_shape`` name of the synthetic
+#: Thesis model name -> ``pcprep.baselines.datasets.make_shape`` name of the synthetic
 #: shape that imitates it (an imitation, not the thesis' point set).
 DATASET_NAME = {
     "cube": "cube",

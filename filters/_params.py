@@ -1,16 +1,21 @@
 """
 _params.py
 ----------
-Parameter declarations.  Each filter module declares its parameters once, as a
-tuple ``PARAMS`` of ``Param``; the NumPy function validates its keyword
-arguments with ``resolve_params`` and the MeshLab bridge, the CLI and the docs
-read the same tuple.  Lengths are always in units of h.
+Parameters declared once.  A filter's keyword-only arguments carry their default
+in the signature and their meaning in the numpydoc ``Parameters`` section; the
+``validate_params`` decorator adds only the constraint (kind, range, unit,
+choices) and derives the rest, so the bridge, the command line and the docs read
+one ``Param`` tuple (``func.params``) that cannot drift from the function.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+import ast
+import functools
+import inspect
+import re
+from dataclasses import dataclass, replace
+from typing import Any, Callable
 
 from ._validation import InvalidParameterError, check_choice, check_param
 
@@ -23,20 +28,23 @@ UNITS = {
     None: "",
 }
 
+#: marks a field that ``validate_params`` fills from the function
+_FROM_FUNCTION: Any = object()
+
+
 @dataclass(frozen=True)
 class Param:
-    """One filter parameter.
+    """The constraint on one filter parameter.
 
-    ``kind`` is one of ``float``, ``int``, ``bool``, ``str``; a ``str`` parameter
-    with ``choices`` is an enumeration.  ``low``/``high``/``closed`` bound
-    numbers (never clamped).  ``default=None`` with ``optional=True`` means
-    "resolved from the data at call time".
+    ``kind`` is ``float``, ``int``, ``bool`` or ``str``; a ``str`` parameter with
+    ``choices`` is an enumeration.  ``low``/``high``/``closed`` bound numbers
+    (never clamped).  ``optional=True`` allows ``None``, meaning "resolved from
+    the data at call time".  ``default`` and ``help`` are filled by
+    ``validate_params`` from the signature and the docstring.
     """
 
     name: str
     kind: type
-    default: Any
-    help: str
     low: float | None = None
     high: float | None = None
     closed: str = "both"
@@ -44,6 +52,8 @@ class Param:
     choices: tuple = ()
     optional: bool = False
     advanced: bool = False
+    default: Any = _FROM_FUNCTION
+    help: str = ""
 
     def check(self, value, func: str):
         if value is None and self.optional:
@@ -79,3 +89,120 @@ def resolve_params(params: tuple[Param, ...], given: dict, func: str) -> dict:
             f"known: {', '.join(sorted(known))}"
         )
     return {p.name: p.check(given.get(p.name, p.default), func) for p in params}
+
+
+_ENTRY = re.compile(r"^(\s*)(\w+(?:\s*,\s*\w+)*)\s*:\s*(.*)$")
+
+
+def docstring_parameters(doc: str) -> dict[str, tuple[str, str]]:
+    """``name -> (type line, description)`` from a numpydoc ``Parameters`` section."""
+    lines = inspect.cleandoc(doc or "").splitlines()
+    try:
+        start = next(i for i, ln in enumerate(lines[:-1])
+                     if ln.strip() == "Parameters" and set(lines[i + 1].strip()) == {"-"})
+    except StopIteration:
+        return {}
+    out: dict[str, tuple[str, str]] = {}
+    name = None
+    body: list[str] = []
+    for i in range(start + 2, len(lines)):
+        ln = lines[i]
+        if i + 1 < len(lines) and ln.strip() and set(lines[i + 1].strip()) == {"-"}:
+            break  # the next section
+        m = _ENTRY.match(ln)
+        if m and not m.group(1):
+            if name:
+                out[name] = (out[name][0], " ".join(body).strip())
+            name, body = m.group(2), []
+            out[name] = (m.group(3).strip(), "")
+        elif name:
+            body.append(ln.strip())
+    if name:
+        out[name] = (out[name][0], " ".join(body).strip())
+    # numpydoc's shared entry "a, b : int, default=1, 2" documents both names
+    for key in [k for k in out if "," in k]:
+        names = [k.strip() for k in key.split(",")]
+        type_line, text = out.pop(key)
+        written = _documented_default(type_line)
+        values = _literal(written) if written is not None else None
+        for i, nm in enumerate(names):
+            line = type_line
+            if isinstance(values, tuple) and len(values) == len(names):
+                line = re.sub(r"default\s*=.*$", f"default={values[i]!r}", type_line)
+            out[nm] = (line, text)
+    return out
+
+
+def _documented_default(type_line: str) -> str | None:
+    m = re.search(r"default\s*=\s*(.+)$", type_line)
+    return m.group(1).strip() if m else None
+
+
+def _literal(text: str):
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return _FROM_FUNCTION  # equal to no default
+
+
+def validate_params(*constraints: Param) -> Callable:
+    """Bind a filter's keyword-only parameters to their constraints.
+
+    Every keyword-only argument of the decorated function needs exactly one
+    ``Param`` and one docstring entry (``name : type, default=value``, or
+    ``name : type, optional`` for a default of None, followed by its
+    description); a mismatch is an error when the module is imported.
+    A call binds the arguments to the signature (defaults live there), checks
+    each against its ``Param`` and passes the checked values on, so unknown
+    names, wrong types and out-of-range values raise ``InvalidParameterError``
+    naming the function, the parameter, the allowed range and the value given.
+    The filled declarations are ``wrapper.params``.
+    """
+
+    def decorate(func: Callable) -> Callable:
+        name = func.__name__
+        sig = inspect.signature(func)
+        keyword = {k: v for k, v in sig.parameters.items() if v.kind is v.KEYWORD_ONLY}
+        declared = {p.name: p for p in constraints}
+        if set(keyword) != set(declared):
+            raise TypeError(
+                f"{name}: keyword-only arguments {sorted(keyword)} and constraints "
+                f"{sorted(declared)} differ")
+        docs = docstring_parameters(func.__doc__)
+        filled = []
+        for pname in keyword:  # signature order
+            if pname not in docs or not docs[pname][1]:
+                raise TypeError(f"{name}: parameter {pname!r} is not documented")
+            type_line, text = docs[pname]
+            default = keyword[pname].default
+            written = _documented_default(type_line)
+            ok = _literal(written) == default if written is not None else (
+                default is None and type_line.endswith("optional"))
+            if not ok:
+                raise TypeError(f"{name}: the docstring of {pname!r} gives its type as "
+                                f"{type_line!r}; the signature's default is {default!r}")
+            p = replace(declared[pname], default=default, help=text)
+            p.check(default, name)  # a default outside its own range is a bug
+            filled.append(p)
+        params = tuple(filled)
+
+        @functools.wraps(func)
+        def wrapper(*args, **kwargs):
+            unknown = sorted(set(kwargs) - set(sig.parameters))
+            if unknown:
+                raise InvalidParameterError(
+                    f"{name}: unknown parameter(s) {', '.join(map(repr, unknown))}; "
+                    f"known: {', '.join(sorted(keyword))}")
+            try:
+                bound = sig.bind(*args, **kwargs)
+            except TypeError as exc:
+                raise InvalidParameterError(f"{name}: {exc}") from None
+            bound.apply_defaults()
+            for p in params:
+                bound.arguments[p.name] = p.check(bound.arguments[p.name], name)
+            return func(*bound.args, **bound.kwargs)
+
+        wrapper.params = params
+        return wrapper
+
+    return decorate

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._params import Param, resolve_params
+from ._params import Param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_spread)
 from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
@@ -69,55 +69,26 @@ FIT_PCA_K = 16
 PROJ_STEPS = 3
 
 PARAMS = (
-    Param("lambda_tv", float, 0.4, "Weight λ of the L1 (TV) normal regulariser (4.5)",
-          low=0.0, high=100.0),
-    Param("sigma_h", float, 0.6, "Height sensitivity σ_h of ψ (4.3)", low=0.0, high=50.0,
-          closed="right", unit="h"),
-    Param("sigma_d", float, 2.0, "Spatial range σ_d of θ (4.3)", low=0.0, high=50.0,
-          closed="right", unit="h"),
-    Param("radius", float, None,
-          "Neighbourhood radius r; None = 1.5 σ_d (thesis §4.5.1: σ_d)",
-          low=0.0, high=50.0, closed="right", unit="h", optional=True),
-    Param("sigma_n_deg", float, 15.0, "Normal-similarity angle σ_n of w_ij (4.4) and "
-          "of the edge detector (4.16)", low=0.0, high=90.0, closed="right", unit="deg"),
-    Param("rho", float, 0.7, "Largest edge-correction move ρ (4.19)", low=0.0, high=10.0,
-          unit="h"),
-    Param("delta", float, 1e-4, "Smallest edge-correction move δ (4.19)", low=0.0,
-          high=1.0, unit="h"),
-    Param("epsilon", float, 4.0, "Largest total displacement ε from the input (4.15)",
-          low=0.0, high=100.0, closed="right", unit="h"),
-    Param("edge_threshold", float, 0.5,
-          "Edge threshold th: V_n below it marks an edge point (4.17)",
-          low=0.0, high=1.0, unit="fraction"),
-    Param("n_iter", int, 6, "Outer iterations j_max (thesis §4.5.1: 10, 16, 20 or 50)",
-          low=1, high=500, unit="count"),
-    Param("curved_iter", int, 2, "Outer iterations after which non-edge points on "
-          "curved parts (sag |c|r² > 0.05h) stop moving; ≥ n_iter = thesis (all "
-          "points move in every iteration)", low=0, high=500, unit="count",
-          advanced=True),
-    Param("inner_iter", int, 2, "Largest number of (n, τ) alternations per outer "
-          "iteration", low=1, high=100, unit="count", advanced=True),
-    Param("init_iter", int, 3, "Passes of the reweighted eigen-iteration (4.9) for n⁰",
-          low=1, high=50, unit="count", advanced=True),
-    Param("tol", float, 1e-3, "Inner loop stops when the RMS of ‖p^{k+1} − p^k‖ falls "
-          "below this", low=0.0, high=10.0, unit="h", advanced=True),
-    Param("edge_correction", bool, False, "Apply the edge-point correction (4.18)-(4.19) "
-          "(off by default: it lowered SNR on every benchmark model, see Notes)"),
-    Param("curvature_offset", bool, True, "Move each point by the intercept of an "
-          "η-weighted fit h ≈ a + cρ² instead of τ (removes the shrinkage of (4.15) on "
-          "curved parts); False = thesis", advanced=True),
-    Param("tv_norm", str, "l2",
-          "Norm of the normal differences in (4.4): 'l2' (isotropic, "
-          "rotation invariant) or the thesis' component-wise 'l1'", choices=("l2", "l1"),
-          advanced=True),
-    Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=4,
-          high=512, unit="count", advanced=True),
-    Param("final_projection", bool, True, "Finish by projecting each input point onto "
-          "an algebraic sphere fitted to its neighbours with the filtered normals "
-          "(plain PCA normals on curved parts), weighted by θ and normal similarity; "
-          "False = thesis (points end where (4.15) left them)", advanced=True),
-    Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
-          low=0, optional=True, advanced=True),
+    Param("lambda_tv", float, low=0.0, high=100.0),
+    Param("sigma_h", float, low=0.0, high=50.0, closed="right", unit="h"),
+    Param("sigma_d", float, low=0.0, high=50.0, closed="right", unit="h"),
+    Param("radius", float, low=0.0, high=50.0, closed="right", unit="h", optional=True),
+    Param("sigma_n_deg", float, low=0.0, high=90.0, closed="right", unit="deg"),
+    Param("rho", float, low=0.0, high=10.0, unit="h"),
+    Param("delta", float, low=0.0, high=1.0, unit="h"),
+    Param("epsilon", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("edge_threshold", float, low=0.0, high=1.0, unit="fraction"),
+    Param("n_iter", int, low=1, high=500, unit="count"),
+    Param("curved_iter", int, low=0, high=500, unit="count", advanced=True),
+    Param("inner_iter", int, low=1, high=100, unit="count", advanced=True),
+    Param("init_iter", int, low=1, high=50, unit="count", advanced=True),
+    Param("tol", float, low=0.0, high=10.0, unit="h", advanced=True),
+    Param("edge_correction", bool),
+    Param("curvature_offset", bool, advanced=True),
+    Param("tv_norm", str, choices=("l2", "l1"), advanced=True),
+    Param("k_max", int, low=4, high=512, unit="count", advanced=True),
+    Param("final_projection", bool, advanced=True),
+    Param("seed", int, low=0, optional=True, advanced=True),
 )
 
 
@@ -663,6 +634,7 @@ def _context(x, idx, p: dict) -> _Ctx:
                 l1=p["tv_norm"] == "l1")
 
 
+@validate_params(*PARAMS)
 def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: float = 0.6,
                   sigma_d: float = 2.0, radius: float | None = None,
                   sigma_n_deg: float = 15.0, rho: float = 0.7, delta: float = 1e-4,
@@ -911,14 +883,14 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     True
     """
     func = "denoise_l1_tv"
-    p = resolve_params(PARAMS, dict(
+    p = dict(
         lambda_tv=lambda_tv, sigma_h=sigma_h, sigma_d=sigma_d, radius=radius,
         sigma_n_deg=sigma_n_deg, rho=rho, delta=delta, epsilon=epsilon,
         edge_threshold=edge_threshold, n_iter=n_iter, curved_iter=curved_iter,
         inner_iter=inner_iter,
         init_iter=init_iter, tol=tol, edge_correction=edge_correction,
         curvature_offset=curvature_offset, tv_norm=tv_norm,
-        k_max=k_max, final_projection=final_projection, seed=seed), func)
+        k_max=k_max, final_projection=final_projection, seed=seed)
     x, hint, centre, h, idx, perm = _prepare(points, normals, p, func)
     n = len(x)
     x0 = x.copy()
@@ -1051,10 +1023,10 @@ def energy_l1_tv(points, normals, tau=None, *, lambda_tv: float = 0.4,
         Σ_i [Σ_j |h_ij − τ_i| ψ θ + λ Σ_{j≠i} w_ij ‖n_i − n_j‖₁].
     """
     func = "energy_l1_tv"
-    full = {q.name: q.default for q in PARAMS}
+    full = {q.name: q.default for q in denoise_l1_tv.params}
     full.update(lambda_tv=lambda_tv, sigma_h=sigma_h, sigma_d=sigma_d, radius=radius,
                 sigma_n_deg=sigma_n_deg, k_max=k_max)
-    p = resolve_params(PARAMS, full, func)
+    p = resolve_params(denoise_l1_tv.params, full, func)
     if normals is None:
         raise InvalidParameterError(f"{func}: normals must be given")
     x, nrm, _, _, idx, perm = _prepare(points, normals, p, func)

@@ -34,7 +34,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from . import sparse
-from ._params import Param, resolve_params
+from ._params import Param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_spread)
 from .neighbors import CHUNK, SPACING_K, average_spacing, build_tree, centered, knn
@@ -827,112 +827,37 @@ class DetectionResult:
 def _common_params(k_min: int, k_max: int, tol: float, score: str,
                    extra: tuple[Param, ...] = ()) -> tuple[Param, ...]:
     return extra + (
-        Param("n_scales", int, 10, "Number of neighbourhood sizes whose features are "
-              "concatenated (thesis §7.3.5 uses 10).", low=1, high=32, unit="count"),
-        Param("k_min", int, k_min, "Smallest neighbourhood size (points, self included).",
-              low=5, high=500, unit="count"),
-        Param("k_max", int, k_max, "Largest neighbourhood size (points, self included); "
-              "one k-NN query of this size serves every scale.", low=5, high=500,
-              unit="count"),
-        Param("n_atoms", int, 100, "Dictionary size S (thesis: 100).", low=2, high=1000,
-              unit="count"),
-        Param("coder", str, "omp", "Coding of every point on the learned dictionary: "
-              "'omp' (OMP to the residual target tol; fast) or 'lasso_lars' (the "
-              "thesis' Lasso (3.7) with penalty alpha, by LARS).",
-              choices=("omp", "lasso_lars")),
-        Param("alpha", float, 0.01, "L1 penalty λ of the Lasso coder (thesis: 0.01); "
-              "used when coder='lasso_lars'.", low=0.0, high=100.0, closed="right",
-              advanced=True),
-        Param("tol", float, tol, "OMP residual target per feature: a point's coding "
-              "stops when ‖z − αD‖² ≤ tol·d (standardised features); used when "
-              "coder='omp'.", low=0.0, high=10.0, closed="right", advanced=True),
-        Param("score", str, score, "Per-point score: 'count' = number of atoms "
-              "(thesis (7.8)) plus the residual as tie-break, 'l1' = ‖α‖₁ plus the "
-              "residual.", choices=("count", "l1")),
-        Param("beta", float, None, "Rarity level β of (7.10): T = β·max(score). "
-              "Empty = automatic threshold by Otsu's method (Tran et al. 2014).",
-              low=0.0, high=1.0, optional=True),
-        Param("max_iter", int, 10, "K-SVD iterations.", low=1, high=200, unit="count",
-              advanced=True),
-        Param("max_train", int, 4000, "At most this many points (seeded subsample) "
-              "train the dictionary; all points are then coded.", low=100,
-              high=10_000_000, unit="count", advanced=True),
-        Param("seed", int, None, "Seed of the training subsample and of the K-SVD "
-              "initialisation.", low=0, optional=True),
+        Param("n_scales", int, low=1, high=32, unit="count"),
+        Param("k_min", int, low=5, high=500, unit="count"),
+        Param("k_max", int, low=5, high=500, unit="count"),
+        Param("n_atoms", int, low=2, high=1000, unit="count"),
+        Param("coder", str, choices=("omp", "lasso_lars")),
+        Param("alpha", float, low=0.0, high=100.0, closed="right", advanced=True),
+        Param("tol", float, low=0.0, high=10.0, closed="right", advanced=True),
+        Param("score", str, choices=("count", "l1")),
+        Param("beta", float, low=0.0, high=1.0, optional=True),
+        Param("max_iter", int, low=1, high=200, unit="count", advanced=True),
+        Param("max_train", int, low=100, high=10_000_000, unit="count", advanced=True),
+        Param("seed", int, low=0, optional=True),
     )
 
 
 #: parameters of ``detect_sharp_features``
 PARAMS_SHARP = _common_params(8, 40, 0.1, "l1", (
-    Param("crease_width", float, 0.7, "Localisation step: a detected point is kept only "
-          "if it lies within this distance of the crease line estimated from its "
-          "neighbourhood's ridge strength (used where the two-plane model of "
-          "plane_width does not fit; see Notes).  Empty = no localisation (the "
-          "thesis' rule (7.11) alone).", low=0.0, high=100.0, closed="right", unit="h",
-          optional=True),
-    Param("plane_width", float, 1.0, "Localisation width where two planes fitted to a "
-          "detected point's neighbourhood explain it to the noise level: the point is "
-          "kept if it lies within this distance of their intersection line (see "
-          "Notes); crease_width applies elsewhere.  Empty = ridge-line estimate "
-          "everywhere.", low=0.0, high=100.0, closed="right", unit="h",
-          optional=True),
-    Param("row_width", float, 0.5, "The localisation width on a regularly sampled "
-          "cloud (nearest-neighbour distance CV < 0.35, e.g. mesh vertices), where the "
-          "crease itself carries a row of samples; replaces plane_width and "
-          "crease_width there (see Notes).  Empty = those two for every sampling.", low=0.0, high=100.0, closed="right", unit="h",
-          optional=True),
-    Param("min_angle", float, 25.0, "Crease-angle gate: a detected point is kept only "
-          "if the normals within its 32 nearest neighbours turn by at least this "
-          "angle (see Notes); smooth surfaces turn by a few degrees.  0 = off.",
-          low=0.0, high=90.0, unit="deg"),
-    Param("otsu_scale", float, None, "The automatic threshold (beta empty) is this "
-          "fraction of Otsu's split of the score: below 1 the threshold favours "
-          "recall and leaves precision to the crease-angle gate and the localisation "
-          "(see Notes); 1 = Otsu's split itself.  Empty = 0.6 when both of those "
-          "steps are on, 1 otherwise.", low=0.0, high=1.0, closed="right",
-          optional=True)))
+    Param("crease_width", float, low=0.0, high=100.0, closed="right", unit="h", optional=True),
+    Param("plane_width", float, low=0.0, high=100.0, closed="right", unit="h", optional=True),
+    Param("row_width", float, low=0.0, high=100.0, closed="right", unit="h", optional=True),
+    Param("min_angle", float, low=0.0, high=90.0, unit="deg"),
+    Param("otsu_scale", float, low=0.0, high=1.0, closed="right", optional=True)))
 #: parameters of ``detect_hole_boundaries``
 PARAMS_HOLES = _common_params(16, 80, 0.3, "l1", (
-    Param("min_shift", float, 0.2, "Geometric gate: a detected point must also have a "
-          "tangential centroid shift of at least this fraction of the neighbourhood "
-          "radius, averaged over the scales (an exact half-disc gives 0.42; 0 "
-          "disables the gate and leaves the pure code-rarity rule).", low=0.0, high=1.0,
-          unit="fraction"),
-    Param("rim_width", float, 2.0, "Localisation step: a detected point is kept only "
-          "if its distance to the border, estimated from its centroid shifts (see "
-          "Notes), is at most this.  Empty = off.", low=0.0, high=100.0,
-          closed="right", unit="h", optional=True),
-    Param("extent_width", float, 1.4, "Strip localisation: a detected point is kept "
-          "only if the surface ends within this distance of it toward the border "
-          "(outermost neighbours in a 3h-wide strip along the border normal, see "
-          "Notes).  Empty = off (and Otsu's threshold is applied twice, as before "
-          "this step).", low=0.0, high=100.0, closed="right", unit="h",
-          optional=True),
-    Param("max_variation", float, 0.13, "Flatness gate: a detected point is kept only "
-          "if the surface variation of its smallest neighbourhood is at most this "
-          "(0.128 = half a disc folded by 90 degrees, a rim crossing a right-angle "
-          "crease; a neighbourhood wrapped around a thin part is rounder; see Notes).  "
-          "Empty = off.", low=0.0, high=1.0 / 3.0, unit="fraction", optional=True),
-    Param("min_support", int, 2, "Border support: a detected point is kept only if at "
-          "least this many other detected points lie within 3h of it (a border is a "
-          "curve, with detected neighbours on both sides; see Notes).  0 = off.",
-          low=0, high=1000, unit="count"),
-    Param("min_radius", float, None, "Smallest hole: detected points are linked into "
-          "borders (within 3h), and a border whose radius (largest distance from its "
-          "centroid) is below this is dropped on irregularly sampled clouds, where "
-          "random sampling leaves empty patches that look like small holes.  A regular "
-          "sampling (mesh vertices, range grids) has no such gaps: every border is kept "
-          "there.  Empty = 0.3·ln(n), just above the largest chance gaps of n random "
-          "samples (measured 2.3h at 20K points, 3.5h at 1M; see Notes); 0 = off.",
-          low=0.0, high=1000.0, unit="h", optional=True),
-    Param("row_angle", float, 90.0, "Border row on a mesh-like sampling (mesh "
-          "vertices, range grids: fewer than 1 % of the points closer to their nearest "
-          "neighbour than 0.3 x the median spacing), whose border is itself a row of "
-          "samples: a detected point is kept only if its k_min nearest neighbours, "
-          "seen around its normal, leave an empty angle wider than this (90 = PCL's "
-          "boundary criterion), and the points with such an angle chained to a kept "
-          "one (steps <= 1.5h) are added (see Notes).  Random-like clouds are not "
-          "affected.  Empty = off.", low=0.0, high=360.0, unit="deg", optional=True)))
+    Param("min_shift", float, low=0.0, high=1.0, unit="fraction"),
+    Param("rim_width", float, low=0.0, high=100.0, closed="right", unit="h", optional=True),
+    Param("extent_width", float, low=0.0, high=100.0, closed="right", unit="h", optional=True),
+    Param("max_variation", float, low=0.0, high=1.0 / 3.0, unit="fraction", optional=True),
+    Param("min_support", int, low=0, high=1000, unit="count"),
+    Param("min_radius", float, low=0.0, high=1000.0, unit="h", optional=True),
+    Param("row_angle", float, low=0.0, high=360.0, unit="deg", optional=True)))
 #: alias used by the bridge convention (one ``PARAMS`` per module)
 PARAMS = PARAMS_SHARP
 
@@ -1169,6 +1094,7 @@ def _select(st: dict, p: dict, func: str, kind: str) -> DetectionResult:
                            border_extent=extent)
 
 
+@validate_params(*PARAMS_SHARP)
 def detect_sharp_features(points, normals=None, *, crease_width: float | None = 0.7,
                           plane_width: float | None = 1.0,
                           row_width: float | None = 0.5,
@@ -1229,8 +1155,10 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
     beta : float in [0, 1], optional
         T = β·max f (7.10).  None (default): ``otsu_scale`` times Otsu's
         threshold on f.
-    max_iter, max_train : int
-        K-SVD iterations and training-subsample size.
+    max_iter : int, default=10
+        K-SVD iterations.
+    max_train : int, default=4000
+        Training-subsample size of the K-SVD.
     seed : int, optional
         Seeds the K-SVD subsample and initialisation.
 
@@ -1488,22 +1416,23 @@ def detect_sharp_features(points, normals=None, *, crease_width: float | None = 
 
     Examples
     --------
-    >>> from baselines.datasets import make_shape
+    >>> from pcprep.baselines.datasets import make_shape
     >>> s = make_shape("cube", n=4000, seed=0)
     >>> r = detect_sharp_features(s.points, seed=0)
     >>> bool(r.mask.shape == (4000,) and 0 < r.mask.sum() < 4000)
     True
     """
-    p = resolve_params(PARAMS_SHARP, dict(
+    p = dict(
         crease_width=crease_width, plane_width=plane_width, row_width=row_width,
         min_angle=min_angle, otsu_scale=otsu_scale, n_scales=n_scales, k_min=k_min,
         k_max=k_max,
         n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
-        max_train=max_train, seed=seed), "detect_sharp_features")
+        max_train=max_train, seed=seed)
     return _detect(points, normals, p, "detect_sharp_features", "sharp")
 
 
+@validate_params(*PARAMS_HOLES)
 def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
                            rim_width: float | None = 2.0,
                            extent_width: float | None = 1.4,
@@ -1559,8 +1488,24 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
         scales), and the other points with such an angle
         that are chained to a kept one (steps ≤ 1.5h) are added
         (``track_border``).  Random-like clouds are not affected.  None: off.
-    n_scales, k_min, k_max, n_atoms, coder, alpha, tol, max_iter, max_train, seed
-        As in ``detect_sharp_features`` (defaults k_min=16, k_max=80, tol=0.3).
+    n_scales : int, default=10
+        Neighbourhood sizes, geometrically spaced from ``k_min`` to ``k_max``.
+    k_min, k_max : int, default=16, 80
+        Smallest and largest neighbourhood (points, the point itself included).
+    n_atoms : int, default=100
+        Dictionary size S (thesis §7.4.1).
+    coder : {"omp", "lasso_lars"}, default="omp"
+        How every point is coded on the learned dictionary.
+    alpha : float, default=0.01
+        Lasso penalty λ (thesis §7.4.1), for ``coder="lasso_lars"``.
+    tol : float, default=0.3
+        OMP squared-residual target per feature, for ``coder="omp"``.
+    max_iter : int, default=10
+        K-SVD iterations.
+    max_train : int, default=4000
+        Training-subsample size of the K-SVD.
+    seed : int, optional
+        Seeds the K-SVD subsample and initialisation.
     score : {"l1", "count"}, default="l1"
         ``"l1"``: ‖α_j‖₁ + residual (default, see Notes); ``"count"``: the atom
         count of (7.8) with the residual tie-break.
@@ -1830,12 +1775,12 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
       instead of 1.5 s, the 20K-point synthetic parts 0.8-1.0 s instead of
       0.5-0.8 s.
     """
-    p = resolve_params(PARAMS_HOLES, dict(
+    p = dict(
         min_shift=min_shift, rim_width=rim_width, extent_width=extent_width,
         max_variation=max_variation, min_support=min_support,
         min_radius=min_radius, row_angle=row_angle, n_scales=n_scales, k_min=k_min,
         k_max=k_max,
         n_atoms=n_atoms, coder=coder,
         alpha=alpha, tol=tol, score=score, beta=beta, max_iter=max_iter,
-        max_train=max_train, seed=seed), "detect_hole_boundaries")
+        max_train=max_train, seed=seed)
     return _detect(points, normals, p, "detect_hole_boundaries", "hole")

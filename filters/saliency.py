@@ -14,7 +14,7 @@ Per point p_i (neighbourhood N_g(p_i) = points within radius r):
    tangent plane, rays at a fixed angular step 2π/m are cast to the 1-ring
    (length r), and the neighbour nearest each ray end lends its F̄ as an atom;
 4. Lasso coding of F̄_i against the m atoms (5.6), solved for all points at
-   once by :func:`filters.lasso_batched.lasso_batched`;
+   once by :func:`pcprep.filters.lasso_batched.lasso_batched`;
 5. neighbourhood saliency S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) with
    ``measure="mdl"``, or the residual term N(‖F̄_i − Dα‖₁) alone (the default,
    see the function's Notes), accumulated over the overlapping neighbourhoods
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._params import Param, resolve_params
+from ._params import Param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
 from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
@@ -49,26 +49,13 @@ LASSO_ITER = 32
 LASSO_TOL = 1e-7
 
 PARAMS = (
-    Param("radius", float, 3.0, "Radius r of the neighbourhoods N_g and length of the "
-          "rays to the 1-ring (§5.3.2.2)", low=1.0, high=50.0, unit="h"),
-    Param("n_rays", int, 8, "Rays m cast in the tangent plane, i.e. surrounding "
-          "neighbourhoods (atoms) per point", low=3, high=32, unit="count"),
-    Param("alpha", float, 0.9, "Weight λ of ‖α‖₁ in the Lasso (5.6), thesis value 0.9",
-          low=0.0, high=100.0, closed="right"),
-    Param("measure", str, "residual", "Neighbourhood saliency: 'mdl' = "
-          "N(‖α‖₀)·N(residual) (5.7, thesis); 'residual' = N(residual) alone (see Notes)",
-          choices=("mdl", "residual")),
-    Param("accumulation", str, "quantile", "How S_T is accumulated over the overlapping "
-          "neighbourhoods that contain a point: 'quantile' = their acc_quantile quantile "
-          "(a robust minimum, sharper; see Notes), 'mean' = their mean",
-          choices=("quantile", "mean")),
-    Param("acc_quantile", float, 0.1, "Quantile used by accumulation='quantile' "
-          "(0 = minimum, 0.5 = median)", low=0.0, high=1.0, unit="fraction",
-          advanced=True),
-    Param("k_max", int, 32, "Cap on the neighbours kept within the radius", low=8,
-          high=512, unit="count", advanced=True),
-    Param("seed", int, None, "Accepted for a uniform API; the filter uses no randomness",
-          low=0, optional=True, advanced=True),
+    Param("radius", float, low=1.0, high=50.0, unit="h"),
+    Param("n_rays", int, low=3, high=32, unit="count"),
+    Param("alpha", float, low=0.0, high=100.0, closed="right"),
+    Param("measure", str, choices=("residual", "mdl")),
+    Param("accumulation", str, choices=("quantile", "mean")),
+    Param("acc_quantile", float, low=0.0, high=1.0, unit="fraction", advanced=True),
+    Param("k_max", int, low=8, high=512, unit="count", advanced=True),
 )
 
 
@@ -230,7 +217,7 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
 
 def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
                         k: int = 16) -> np.ndarray:
-    """Consistent normal signs by :func:`filters.neighbors.orient_normals_mst`
+    """Consistent normal signs by :func:`pcprep.filters.neighbors.orient_normals_mst`
     with the chord-mirror agreement (``mirror=True``) on the ``k`` nearest
     neighbours already held in ``hood`` (no new k-NN query; neighbours beyond
     the radius still join the graph, so a sparse region does not fall apart
@@ -272,11 +259,11 @@ def _normalise(v: np.ndarray) -> np.ndarray:
     return v / top if top > 0 else np.zeros_like(v, dtype=np.float64)
 
 
+@validate_params(*PARAMS)
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
                         alpha: float = 0.9, measure: str = "residual",
                         accumulation: str = "quantile", acc_quantile: float = 0.1,
-                        k_max: int = 32, seed: int | None = None
-                        ) -> SaliencyResult:
+                        k_max: int = 32) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (thesis ch.5).
 
     Parameters
@@ -293,10 +280,10 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         m: rays in the tangent plane = atoms per dictionary.
     alpha : float, default=0.9
         λ of eq. (5.6), ‖x − Dα‖₂² + λ‖α‖₁ (the thesis value).
-    measure : {"residual", "mdl"}, default="residual"
+    measure : {"residual", "mdl"}, default='residual'
         Neighbourhood saliency: the coding residual N(S_I), or the thesis'
         product N(S_M)·N(S_I) of eq. (5.7) (see Notes).
-    accumulation : {"quantile", "mean"}, default="quantile"
+    accumulation : {"quantile", "mean"}, default='quantile'
         How the neighbourhood saliencies are accumulated at each point: the
         ``acc_quantile`` quantile of the S_T of the neighbourhoods containing
         it, or their mean (see Notes).
@@ -304,8 +291,6 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
         Cap on the neighbours within the radius (the nearest are kept).
-    seed : int or None
-        Accepted for a uniform API; the filter is deterministic.
 
     Returns
     -------
@@ -336,13 +321,13 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     N_g oriented by MST propagation (Hoppe 1992) over the 16 nearest
     neighbours, each connected component rooted at its highest point with its
     normal toward +z, which is outward on closed surfaces (the convention of
-    ``filters.neighbors.orient_normals_mst``).  The thesis does not say how
+    ``pcprep.filters.neighbors.orient_normals_mst``).  The thesis does not say how
     its normals are oriented; Hoppe's rule (flip when n_i·n_j < 0) flips whole
     faces of the "star" solid, whose tips are sharper than 90° (12 % of its
     normals at 0.3 h noise, 45 % clean with another seed), and a flipped
     face cancels the normal part of the descriptor along its edges.  So the
     propagation here also admits the neighbour's normal mirrored in the
-    plane bisecting the chord p_i p_j (``filters.neighbors.normal_agreement``, after the
+    plane bisecting the chord p_i p_j (``pcprep.filters.neighbors.normal_agreement``, after the
     osculating-circle consistency of König & Gumhold 2009) when that agrees
     more strongly than the plain product.  On the star (4 seeds × 6000,
     10000, 20000 points × clean, 0.3 h, 30 % random) the runs with a face
@@ -462,10 +447,8 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     True
     """
     func = "saliency_sparse_mdl"
-    p = resolve_params(PARAMS, dict(radius=radius, n_rays=n_rays, alpha=alpha,
-                                    measure=measure, accumulation=accumulation,
-                                    acc_quantile=acc_quantile, k_max=k_max, seed=seed),
-                       func)
+    p = dict(radius=radius, n_rays=n_rays, alpha=alpha, measure=measure,
+             accumulation=accumulation, acc_quantile=acc_quantile, k_max=k_max)
     pts = as_points(points, func=func, min_points=MIN_POINTS)
     n = len(pts)
     nrm = None if normals is None else as_normals(normals, n, func=func)

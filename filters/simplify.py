@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels, sparse
-from ._params import Param, resolve_params
+from ._params import Param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
 from .neighbors import CHUNK, build_tree, knn, weighted_pca
@@ -22,34 +22,18 @@ from .neighbors import CHUNK, build_tree, knn, weighted_pca
 log = logging.getLogger("pcprep")
 
 PARAMS = (
-    Param("ratio", float, None, "Fraction of the points to keep (exactly one of ratio, "
-          "count, delta)", low=0.0, high=1.0, closed="neither", unit="fraction",
-          optional=True),
-    Param("count", int, None, "Number of points to keep (exactly one of ratio, count, "
-          "delta)", low=1, unit="count", optional=True),
-    Param("delta", float, None, "Scale δ of the removal radius ρ_i = δ/Sf_i (6.11), "
-          "given directly (exactly one of ratio, count, delta)", low=0.0,
-          closed="neither", unit="h", optional=True),
-    Param("k", int, 16, "Neighbours of the weighted PCA (6.1)", low=4, high=200,
-          unit="count"),
-    Param("n_atoms", int, 200, "Dictionary size S", low=2, high=2000, unit="count"),
-    Param("alpha", float, 0.25, "Lasso weight of the coding stage (thesis λ = 0.5 in "
-          "(3.7) without the ½, i.e. alpha = λ/2)", low=0.0, closed="neither"),
-    Param("feature_scale", str, "balanced", "Column scaling of F = (n, σ, p): "
-          "'balanced' gives each group unit RMS norm, 'thesis' leaves it raw "
-          "(positions relative to the bounding-box diagonal)",
-          choices=("balanced", "thesis")),
-    Param("density_adapt", float, 0.5, "Exponent β of the radius unit h^(1-β)·h_i^β "
-          "(h_i the local spacing): 0 = the global h of the thesis (uniform output on "
-          "non-uniform input), 1 = keep a constant local fraction", low=0.0, high=1.0),
-    Param("sf_floor", float, 0.3, "Saliency below which the removal radius stops "
-          "growing: ρ_i = δ / max(Sf_i, sf_floor)", low=0.0, high=1.0,
-          closed="neither", advanced=True),
-    Param("max_iter", int, 5, "K-SVD iterations", low=1, high=200, advanced=True),
-    Param("max_train", int, 10000, "Signals (seeded subsample) that train the "
-          "dictionary", low=100, unit="count", advanced=True),
-    Param("seed", int, 0, "Seed of the K-SVD subsample and initialisation", low=0,
-          optional=True),
+    Param("ratio", float, low=0.0, high=1.0, closed="neither", unit="fraction", optional=True),
+    Param("count", int, low=1, unit="count", optional=True),
+    Param("delta", float, low=0.0, closed="neither", unit="h", optional=True),
+    Param("k", int, low=4, high=200, unit="count"),
+    Param("n_atoms", int, low=2, high=2000, unit="count"),
+    Param("alpha", float, low=0.0, closed="neither"),
+    Param("feature_scale", str, choices=("balanced", "thesis")),
+    Param("density_adapt", float, low=0.0, high=1.0),
+    Param("sf_floor", float, low=0.0, high=1.0, closed="neither", advanced=True),
+    Param("max_iter", int, low=1, high=200, advanced=True),
+    Param("max_train", int, low=100, unit="count", advanced=True),
+    Param("seed", int, low=0, optional=True),
 )
 
 
@@ -316,6 +300,7 @@ GRAPH_K = 32
 
 
 # --------------------------------------------------------------------------- main
+@validate_params(*PARAMS)
 def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
                   count: int | None = None, delta: float | None = None, k: int = 16,
                   n_atoms: int = 200, alpha: float = 0.25,
@@ -416,12 +401,12 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     300
     """
     func = "simplify_sdbs"
-    p = resolve_params(PARAMS, dict(ratio=ratio, count=count, delta=delta, k=k,
+    p = dict(ratio=ratio, count=count, delta=delta, k=k,
                                     n_atoms=n_atoms, alpha=alpha,
                                     feature_scale=feature_scale,
                                     density_adapt=density_adapt,
                                     sf_floor=sf_floor,
-                                    max_iter=max_iter, max_train=max_train, seed=seed), func)
+                                    max_iter=max_iter, max_train=max_train, seed=seed)
     given = [name for name in ("ratio", "count", "delta") if p[name] is not None]
     if len(given) != 1:
         raise InvalidParameterError(

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from filters._validation import PointCloudError, as_points
+from pcprep.filters._validation import PointCloudError, as_points
 
 from . import registry
 from .convert import Cloud, MissingAttributeError, cloud_to_mesh, meshset_to_cloud
@@ -42,6 +42,13 @@ def print_filter_parameter_list(name: str) -> None:
     """Print a filter's parameters with defaults, ranges, units and help, as
     ``pymeshlab.print_filter_parameter_list`` does."""
     print(filter_parameter_text(name))  # noqa: T201 -- the function's purpose
+
+
+def filter_parameter_values(name: str) -> dict:
+    """Default value of every parameter of filter ``name``, as
+    ``pymeshlab.MeshSet.filter_parameter_values`` gives them (``None`` = resolved
+    from the data at call time)."""
+    return registry.get(name).defaults()
 
 
 def filter_parameter_text(name: str) -> str:
@@ -59,8 +66,6 @@ def filter_parameter_text(name: str) -> str:
 def run_on_cloud(spec, cloud: Cloud, params: dict):
     """Validate ``params``, check requirements and call the filter's function."""
     resolved = spec.resolve(params)
-    if "normals" in spec.requires and cloud.normals is None:
-        raise MissingAttributeError(f"{spec.name} requires per-vertex normals; the layer has none")
     if len(cloud) == 0:
         raise PointCloudError(f"{spec.name}: the layer is empty (0 vertices)")
     as_points(cloud.points, func=spec.name)  # NaN/Inf rows named before any work

@@ -7,8 +7,8 @@ The ``pcprep`` command line, generated from the filter registry.
     pcprep filters
     pcprep denoise|features|holes|saliency IN OUT [--param value ...]
     pcprep simplify IN OUT (--ratio R | --count N) [--param value ...]
-    pcprep bench denoise|simplify|features|saliency [--quick] [--speed]
-    pcprep report [--quick]
+    pcprep bench FAMILY [--quick] [--speed]      (from pcprep.baselines)
+    pcprep report [--quick]                      (from pcprep.baselines)
 
 Errors print one line on stderr and exit with status 1 (2 for usage errors);
 no output file is written unless the whole run succeeded.
@@ -19,19 +19,15 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from importlib import import_module
 
 import numpy as np
 
-from filters._validation import InvalidParameterError, PointCloudError
+from pcprep.filters._validation import InvalidParameterError, PointCloudError
 
 from . import registry
 from .convert import MissingAttributeError, load_cloud, save_cloud
 
 log = logging.getLogger("pcprep")
-
-BENCHES = ("denoise", "simplify", "features", "saliency")
-
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit 2, like argparse but no usage dump
@@ -60,7 +56,7 @@ def _add_filter_command(sub, spec) -> None:
         p.add_argument(
             f"--{prm.name.replace('_', '-')}", dest=prm.name, type=kind, default=None,
             choices=prm.choices or None, metavar=prm.name.upper() if not prm.choices else None,
-            help=f"{prm.help}{unit}.{rng} Default: {default}.",
+            help=(f"{prm.help.rstrip('.')}{unit}.{rng} Default: {default}.").replace("%", "%%"),
         )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(_spec=spec)
@@ -71,35 +67,22 @@ def build_parser() -> argparse.ArgumentParser:
         "Sparse-representation point-cloud pre-processing (Leal Narváez 2020): denoising, "
         "saliency, simplification, sharp features and hole boundaries, benchmarked against "
         "MeshLab and CGAL."))
+    from pcprep import __version__
+
+    parser.add_argument("--version", action="version", version=f"pcprep {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     info = sub.add_parser("info", help="point count, spacing h, bounding box, attributes")
     info.add_argument("input")
     sub.add_parser("filters", help="list the filters and their parameters")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
-    bench = sub.add_parser("bench", help="run one comparison harness; writes reports/")
-    bench.add_argument("family", choices=BENCHES)
-    bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
-    bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
-    bench.add_argument("--out", default=None,
-                       help="output folder (default: reports, or reports/quick with --quick)")
-    bench.add_argument("--seed", type=int, default=0)
-    bench.add_argument("--quiet", action="store_true")
-    rep = sub.add_parser("report", help="run every harness and write reports/index.md + .html")
-    rep.add_argument("--quick", action="store_true",
-                     help="generated and pymeshlab-shipped data only; a few minutes")
-    rep.add_argument("--out", default=None,
-                     help="output folder (default: reports, or reports/quick with --quick)")
-    rep.add_argument("--assemble-only", action="store_true",
-                     help="do not re-run the harnesses; assemble the index from the reports "
-                          "already in the output folder")
-    rep.add_argument("--seed", type=int, default=0)
-    rep.add_argument("--quiet", action="store_true")
+    for command in _plugin_commands():
+        command(sub)
     return parser
 
 
 def _cmd_info(path: str) -> None:
-    from filters.neighbors import average_spacing
+    from pcprep.filters.neighbors import average_spacing
 
     cloud = load_cloud(path)
     pts = cloud.points
@@ -162,24 +145,14 @@ def _cmd_filter(args) -> None:
     log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
 
 
-def _out(args) -> str:
-    """Quick runs go to their own folder so they never overwrite a full run."""
-    if args.out is not None:
-        return args.out
-    return "reports/quick" if args.quick else "reports"
+def _plugin_commands() -> list:
+    """Sub-commands contributed by other layers through the ``pcprep.commands``
+    entry-point group (``bench`` and ``report`` come from ``pcprep.baselines``),
+    so this module never imports the layer above it."""
+    from importlib.metadata import entry_points
 
-
-def _cmd_bench(args) -> None:
-    mod = import_module(f"baselines.bench_{args.family}")
-    fn = mod.run_speed if args.speed else mod.run
-    fn(quick=args.quick, seed=args.seed, out_dir=_out(args))
-
-
-def _cmd_report(args) -> None:
-    from baselines import report
-
-    report.build(quick=args.quick, seed=args.seed, out_dir=_out(args),
-                 assemble_only=args.assemble_only)
+    return [ep.load() for ep in sorted(entry_points(group="pcprep.commands"),
+                                       key=lambda ep: ep.name)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -195,13 +168,14 @@ def main(argv: list[str] | None = None) -> int:
             _cmd_info(args.input)
         elif args.command == "filters":
             _cmd_filters()
-        elif args.command == "bench":
-            _cmd_bench(args)
-        elif args.command == "report":
-            _cmd_report(args)
+        elif hasattr(args, "_run"):
+            args._run(args)
         else:
             _cmd_filter(args)
     except (PointCloudError, InvalidParameterError, MissingAttributeError) as exc:
+        sys.stderr.write(f"pcprep: error: {exc}\n")
+        return 1
+    except OSError as exc:  # unreadable input, unwritable output, missing folder
         sys.stderr.write(f"pcprep: error: {exc}\n")
         return 1
     except MemoryError:

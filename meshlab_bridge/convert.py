@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from filters._validation import PointCloudError
+from pcprep.filters._validation import PointCloudError
 
 
 class MissingAttributeError(ValueError):

@@ -1,13 +1,15 @@
 """
 registry.py
 -----------
-The plugin-style filter registry.  Each filter is declared exactly once, as a
-``FilterSpec`` holding its parameters (``Param``); that one declaration drives
-parameter validation, MeshSet application (``apply.py``), the command line
-(``cli.py``), ``print_filter_parameter_list`` and the README filter table.
+The plugin-style filter registry.  Each filter is declared once, as a
+``FilterSpec``; its parameters come from the NumPy function itself
+(``func.params``, filled by ``pcprep.filters._params.validate_params`` from the
+signature, the docstring and the constraints), so the spec, MeshSet
+application (``apply.py``), the command line (``cli.py``),
+``print_filter_parameter_list`` and the README filter table cannot disagree.
 
-Spec modules live in ``meshlab_bridge/specs/`` (one per filter family) and call
-``register`` at import time.
+Spec modules live in ``meshlab_bridge/specs/``, one per family of
+``specs.FAMILIES``, and call ``register`` when imported.
 """
 
 from __future__ import annotations
@@ -15,11 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
-from filters._params import UNITS, Param, resolve_params  # noqa: F401  (re-exported)
-from filters._validation import InvalidParameterError
+from pcprep.filters._params import UNITS, Param, resolve_params  # noqa: F401  (re-exported)
+from pcprep.filters._validation import InvalidParameterError
 
 #: how a filter's result lands in a MeshSet
-KINDS = ("coord", "scalar", "selection", "new_layer", "measure")
+KINDS = ("coord", "scalar", "selection", "new_layer")
 
 
 @dataclass(frozen=True)
@@ -38,18 +40,19 @@ class FilterSpec:
     description : str
         A paragraph citing the thesis chapter and equations.
     func : callable
-        ``func(points, normals=None, **params) -> Result`` (a frozen dataclass).
-    params : tuple of Param
+        ``func(points, normals=None, **params) -> Result`` (a frozen dataclass),
+        decorated with ``validate_params`` so that ``func.params`` exists.
     kind : str
-        ``"coord"`` (positions/normals replaced in place; ``mask_field``, if
-        set, becomes the vertex selection), ``"scalar"`` (``scalar_field`` → vertex
-        quality + colour ramp), ``"selection"`` (``mask_field`` → selection,
-        ``scalar_field`` → quality), ``"new_layer"`` (``index_field`` = kept
-        input indices → new layer; optional ``scalar_field`` → its quality).
-    requires : tuple of str
-        ``("normals",)`` when the input must carry normals.
+        ``"coord"`` (positions/normals replaced; ``mask_field``, if set, becomes
+        the vertex selection), ``"scalar"`` (``scalar_field`` → vertex quality and
+        a colour ramp), ``"selection"`` (``mask_field`` → selection,
+        ``scalar_field`` → a custom attribute), ``"new_layer"`` (``index_field`` =
+        kept input indices → new layer).
     uses_normals : bool
         Pass the layer's normals (when present) to ``func``.
+    example : dict
+        Parameters for a quick run on a few thousand points (the contract tests
+        and the docs use them).
     """
 
     name: str
@@ -57,17 +60,18 @@ class FilterSpec:
     label: str
     description: str
     func: Callable
-    params: tuple[Param, ...]
     kind: str
     scalar_field: str | None = None
     mask_field: str | None = None
     index_field: str | None = None
     points_field: str = "points"
     normals_field: str | None = "normals"
-    requires: tuple[str, ...] = ()
     uses_normals: bool = False
-    thesis: str = ""
-    extra: dict = field(default_factory=dict)
+    example: dict = field(default_factory=dict)
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        return self.func.params
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -88,6 +92,9 @@ FILTERS: dict[str, FilterSpec] = {}
 
 def register(spec: FilterSpec) -> FilterSpec:
     """Add ``spec`` to the registry (names and commands must be unique)."""
+    if not hasattr(spec.func, "params"):
+        raise TypeError(f"register: {spec.name}'s function is not decorated with "
+                        "validate_params")
     if spec.kind not in KINDS:
         raise ValueError(f"register: kind must be one of {KINDS}, got {spec.kind!r}")
     if spec.name in FILTERS and FILTERS[spec.name] is not spec:

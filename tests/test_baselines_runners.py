@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines import cgal, meshlab
-from baselines.harness import run_isolated
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.neighbors import average_spacing, pca_normals
+from pcprep.baselines import cgal, meshlab
+from pcprep.baselines.harness import run_isolated
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.neighbors import average_spacing, pca_normals
 
 N_POINTS = 3000
 

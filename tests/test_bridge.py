@@ -5,13 +5,13 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from filters._params import Param, resolve_params
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.neighbors import pca_normals
-from meshlab_bridge import registry
-from meshlab_bridge.apply import apply_filter, filter_list, filter_parameter_text
-from meshlab_bridge.convert import Cloud, cloud_to_mesh, mesh_to_cloud, save_cloud, load_cloud
-from tests.conftest import sphere_points
+from pcprep.filters import resolve_params
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.neighbors import pca_normals
+from pcprep.meshlab_bridge import registry
+from pcprep.meshlab_bridge.apply import apply_filter, filter_list, filter_parameter_text
+from pcprep.meshlab_bridge.convert import Cloud, cloud_to_mesh, mesh_to_cloud, save_cloud, load_cloud
+from helpers import SPECS, sphere_points
 
 
 # --- conversion ----------------------------------------------------------------------
@@ -76,36 +76,7 @@ def test_save_refuses_formats_that_lose_required_attributes(tmp_path):
     assert not list(tmp_path.iterdir())  # no temporary file left behind
 
 
-# --- apply_filter on filters declared here -------------------------------------------
-
-TEST_PARAMS = (Param("k", int, 12, "neighbours", low=4, high=64, unit="count"),)
-
-
-class _Res:
-    def __init__(self, **kw):
-        self.__dict__.update(kw)
-
-
-def _flatten(points, normals=None, *, k=12):
-    p = resolve_params(TEST_PARAMS, {"k": k}, "_flatten")
-    pts = np.array(points, dtype=float)
-    n = pca_normals(pts, p["k"])
-    mask = pts[:, 2] > 0.5
-    return _Res(points=pts * 2.0, normals=n, mask=mask, score=np.clip(pts[:, 2], 0, 1),
-                keep=np.flatnonzero(mask))
-
-
-SPECS = {
-    kind: registry.FilterSpec(
-        name=f"_test_{kind}", command=f"_test_{kind}", label="test", description="Test filter.",
-        func=_flatten, params=TEST_PARAMS, kind=kind,
-        mask_field="mask" if kind in ("coord", "selection") else None,
-        scalar_field="score" if kind in ("scalar", "selection") else None,
-        index_field="keep" if kind == "new_layer" else None,
-    )
-    for kind in ("coord", "scalar", "selection", "new_layer")
-}
-
+# --- apply_filter on filters declared in helpers.py ---------------------------------
 
 @pytest.fixture
 def test_specs():

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from baselines import classic as C
-from baselines.datasets import make_shape
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.metrics import precision_recall_f1
-from tests.conftest import random_rotation
+from pcprep.baselines import classic as C
+from pcprep.baselines.datasets import make_shape
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.metrics import precision_recall_f1
+from helpers import random_rotation
 
 
 @pytest.fixture(scope="module")

@@ -6,11 +6,11 @@ import sys
 import numpy as np
 import pytest
 
-from meshlab_bridge import registry
-from meshlab_bridge.cli import main
-from meshlab_bridge.convert import Cloud, load_cloud, save_cloud
-from tests.conftest import sphere_points
-from tests.test_bridge import SPECS
+from pcprep.meshlab_bridge import registry
+from pcprep.meshlab_bridge.cli import main
+from pcprep.meshlab_bridge.convert import Cloud, load_cloud, save_cloud
+from helpers import sphere_points
+from helpers import SPECS
 
 
 @pytest.fixture
@@ -96,11 +96,11 @@ def test_filters_listing_and_help_come_from_the_registry(specs, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["_test_coord", "--help"])
     assert exc.value.code == 0
-    assert "neighbours [count]" in capsys.readouterr().out
+    assert "normals [count]" in capsys.readouterr().out
 
 
 def test_console_entry_point_runs_as_a_module(cloud_file):
-    proc = subprocess.run([sys.executable, "-m", "meshlab_bridge.cli", "info", str(cloud_file)],
+    proc = subprocess.run([sys.executable, "-m", "pcprep.meshlab_bridge.cli", "info", str(cloud_file)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "points: 800" in proc.stdout

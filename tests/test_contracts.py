@@ -3,16 +3,20 @@ scikit-learn's parametrize_with_checks): parameters documented and checked,
 bad clouds rejected, inputs untouched, outputs finite and deterministic, and
 the MeshSet bridge and the CLI give the same answer as the NumPy function."""
 
+import argparse
+import inspect
+
 import numpy as np
 import pymeshlab
 import pytest
 
-from baselines.datasets import make_shape
-from filters._validation import InvalidParameterError, PointCloudError
-from meshlab_bridge import registry
-from meshlab_bridge.apply import apply_filter
-from meshlab_bridge.cli import main
-from meshlab_bridge.convert import Cloud, load_cloud, save_cloud
+from pcprep.baselines.datasets import make_shape
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.meshlab_bridge import registry
+from pcprep.meshlab_bridge.apply import apply_filter
+from pcprep.filters._params import docstring_parameters
+from pcprep.meshlab_bridge.cli import build_parser, main
+from pcprep.meshlab_bridge.convert import Cloud, load_cloud, save_cloud
 
 SPECS = sorted(registry.load_all().values(), key=lambda s: s.name)
 IDS = [s.command for s in SPECS]
@@ -25,7 +29,7 @@ def part():
 
 
 def _example(spec):
-    return dict(spec.extra.get("example", {}))
+    return dict(spec.example)
 
 
 def _call(spec, points, normals=None, **params):
@@ -48,12 +52,25 @@ def test_registry_has_the_thesis_filters():
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=IDS)
-def test_parameters_are_documented_and_defaults_valid(spec):
-    spec.resolve(_example(spec))
+def test_parameters_are_declared_once(spec):
+    """Signature, spec, docstring and CLI flags name the same parameters with the
+    same defaults (the README table is checked against the spec in test_readme)."""
+    sig = inspect.signature(spec.func)
+    keyword = {n: q.default for n, q in sig.parameters.items() if q.kind is q.KEYWORD_ONLY}
+    assert [p.name for p in spec.params] == list(keyword)
+    assert {p.name: p.default for p in spec.params} == keyword
+    docs = docstring_parameters(spec.func.__doc__)
     for p in spec.params:
-        assert p.help and p.help[0].isupper(), p.name
+        assert docs[p.name][1] == p.help and p.help, p.name
         if p.name.endswith("_deg"):
             assert p.unit == "deg", p.name
+    spec.resolve(_example(spec))
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    flags = {a.dest: a for a in sub.choices[spec.command]._actions if a.option_strings}
+    assert set(flags) - {"help", "quiet"} == set(keyword)
+    for p in spec.params:
+        assert f"--{p.name.replace('_', '-')}" in flags[p.name].option_strings
+        assert tuple(flags[p.name].choices or ()) == p.choices
     assert spec.description.count("(") >= 1  # cites equations / chapter
 
 

@@ -4,8 +4,8 @@ mesh helpers and loaders (which skip when their data is absent)."""
 import numpy as np
 import pytest
 
-from baselines import datasets as ds
-from baselines.datasets import (
+from pcprep.baselines import datasets as ds
+from pcprep.baselines.datasets import (
     SHAPES,
     Sample,
     add_noise,
@@ -16,8 +16,8 @@ from baselines.datasets import (
     mesh_sample,
     sample_mesh_surface,
 )
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.neighbors import average_spacing, knn
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.neighbors import average_spacing, knn
 
 N = 5000
 

@@ -5,14 +5,14 @@ import re
 import numpy as np
 import pytest
 
-from baselines.classic import projected_distance
-from baselines.datasets import add_noise, cut_holes, make_shape
-from filters import features as F
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.metrics import precision_recall_f1
-from filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
+from pcprep.baselines.classic import projected_distance
+from pcprep.baselines.datasets import add_noise, cut_holes, make_shape
+from pcprep.filters import features as F
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.metrics import precision_recall_f1
+from pcprep.filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
 
-from tests.conftest import random_rotation
+from helpers import random_rotation
 
 
 @pytest.fixture(scope="module")
@@ -626,7 +626,7 @@ def test_flatness_gate_keeps_rims_across_creases():
     lam = np.linalg.eigvalsh(np.cov(fold.T))
     assert lam[0] / lam.sum() == pytest.approx(0.128, abs=0.003)
     # holes centred on the cube's edges: the gate removes no rim point there
-    from baselines.bench_features import crease_centres
+    from pcprep.baselines.bench_features import crease_centres
     base = make_shape("cube", n=12000, seed=1)
     s = cut_holes(base, radius=6.0, centers=crease_centres(base, 3, 6.0, seed=0))
     on = F.detect_hole_boundaries(s.points, seed=0)
@@ -640,7 +640,7 @@ def test_flatness_gate_drops_thin_part_ends():
     # pymeshlab's closed cow (2,903 vertices): legs, ears and muzzle 2-4h
     # thick end inside the larger neighbourhoods, which then look like rims;
     # measured 10.4 % flagged without the gate, 6.8 % with it
-    from baselines.datasets import load_sample_mesh
+    from pcprep.baselines.datasets import load_sample_mesh
     try:
         cow = load_sample_mesh("cow")
     except Exception as exc:  # pymeshlab without its sample meshes
@@ -705,17 +705,6 @@ def test_bad_localisation_params(rng):
             F.detect_hole_boundaries(pts, **kw)
 
 
-def test_params_match_signatures():
-    import inspect
-    for fn, params in ((F.detect_sharp_features, F.PARAMS_SHARP),
-                       (F.detect_hole_boundaries, F.PARAMS_HOLES)):
-        sig = inspect.signature(fn).parameters
-        kw = [n for n, p in sig.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
-        assert kw == [p.name for p in params]
-        for p in params:
-            assert sig[p.name].default == p.default
-
-
 # --------------------------------------------------------------- benchmark truth
 def _folded_grid(m=21):
     """An L-shaped strip (floor z = 0 and wall x = 0 meeting at 90° along the
@@ -749,8 +738,8 @@ def _prism(n_sides, caps=True):
 
 
 def test_truth_margin_known_answers():
-    from baselines.bench_features import truth_margin
-    from baselines.meshes import mesh_sample
+    from pcprep.baselines.bench_features import truth_margin
+    from pcprep.baselines.meshes import mesh_sample
 
     # closed 14-gon prism: the 28 cap edges (90°) are sharp, the 14 side
     # edges (25.7°) lie just below the rule
@@ -767,8 +756,8 @@ def test_truth_margin_known_answers():
 
 
 def test_edge_distance_h_matches_the_mesh_vertex_truth():
-    from baselines.bench_features import edge_distance_h
-    from baselines.meshes import mesh_sample
+    from pcprep.baselines.bench_features import edge_distance_h
+    from pcprep.baselines.meshes import mesh_sample
 
     V, Fc = _folded_grid()
     s = mesh_sample(V, Fc)

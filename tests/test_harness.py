@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pytest
 
-from baselines import harness
-from baselines.harness import Outcome, markdown_table, run_isolated, write_report
+from pcprep.baselines import harness
+from pcprep.baselines.harness import Outcome, markdown_table, run_isolated, write_report
 
 
 # --- module-level functions run in the child --------------------------------------------

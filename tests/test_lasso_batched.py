@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from sklearn.linear_model import Lasso, LassoLars
 
-from filters._validation import InvalidParameterError
-from filters.lasso_batched import lasso_batched
+from pcprep import InvalidParameterError
+from pcprep.filters.lasso_batched import lasso_batched
 
 
 def _problems(rng, n=60, d=5, m=10):
@@ -70,7 +70,7 @@ def test_zero_and_duplicate_atoms(rng):
 
 
 def test_chunks_do_not_change_the_answer(rng, monkeypatch):
-    import filters.lasso_batched as lb
+    import pcprep.filters.lasso_batched as lb
     x, D = _problems(rng, n=100)
     whole = lasso_batched(x, D, 0.4).coef
     monkeypatch.setattr(lb, "CHUNK", 7)

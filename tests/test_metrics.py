@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from filters._validation import PointCloudError
-from filters.metrics import (
+from pcprep import PointCloudError
+from pcprep.filters.metrics import (
     bbox_diagonal,
     mad_degrees,
     mse_symmetric,

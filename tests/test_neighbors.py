@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from filters._validation import PointCloudError
-from filters.neighbors import (
+from pcprep import PointCloudError
+from pcprep.filters.neighbors import (
     average_spacing,
     knn,
     orient_normals_mst,
@@ -10,7 +10,7 @@ from filters.neighbors import (
     pca_normals,
     weighted_pca,
 )
-from tests.conftest import random_rotation, sphere_points
+from helpers import random_rotation, sphere_points
 
 
 def test_average_spacing_of_a_square_grid_is_known():

@@ -5,13 +5,13 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from filters._params import Param, resolve_params
-from filters._validation import InvalidParameterError
-from filters.metrics import mse_symmetric, precision_recall_f1, roc_auc
-from filters.neighbors import orient_normals_mst, pca_normals
-from tests.conftest import sphere_points
+from pcprep.filters import Param, resolve_params
+from pcprep import InvalidParameterError
+from pcprep.filters.metrics import mse_symmetric, precision_recall_f1, roc_auc
+from pcprep.filters.neighbors import orient_normals_mst, pca_normals
+from helpers import sphere_points
 
-SIGMA = (Param("sigma_d", float, 3.0, "Support", low=0.5, high=20.0, closed="both", unit="h"),)
+SIGMA = (Param("sigma_d", float, low=0.5, high=20.0, closed="both", unit="h", default=3.0, help="Support"),)
 
 
 @given(st.floats(allow_nan=False, allow_infinity=False))

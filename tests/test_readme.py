@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 
-from meshlab_bridge.docs import BEGIN, END, filter_table_markdown
+from pcprep.meshlab_bridge.docs import BEGIN, END, filter_table_markdown
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 
@@ -41,6 +41,6 @@ def test_python_and_cli_examples_run(tmp_path, monkeypatch):
     assert commands
     env = dict(os.environ)
     for cmd in commands:
-        argv = [sys.executable, "-m", "meshlab_bridge.cli", *shlex.split(cmd)[1:]]
+        argv = [sys.executable, "-m", "pcprep.meshlab_bridge.cli", *shlex.split(cmd)[1:]]
         proc = subprocess.run(argv, capture_output=True, text=True, timeout=600, env=env)
         assert proc.returncode == 0, f"{cmd}: {proc.stderr}"

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import figures, report
-from baselines.harness import markdown_table, write_report
-from tests.conftest import sphere_points
+from pcprep.baselines import figures, report
+from pcprep.baselines.harness import markdown_table, write_report
+from helpers import sphere_points
 
 
 def _fake_bench(family, fail=False):
@@ -28,7 +28,7 @@ def _fake_bench(family, fail=False):
 
 
 def test_tiny_report_structure(tmp_path, monkeypatch):
-    benches = {f"baselines.bench_{f}": _fake_bench(f, fail=(f == "simplify"))
+    benches = {f"pcprep.baselines.bench_{f}": _fake_bench(f, fail=(f == "simplify"))
                for f in report.FAMILIES}
     real_import = report.import_module
     monkeypatch.setattr(report, "import_module",

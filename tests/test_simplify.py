@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baselines.datasets import make_shape
-from filters import simplify as S
-from filters._validation import InvalidParameterError, PointCloudError
-from filters.metrics import simplification_error
-from filters.neighbors import build_tree, knn
+from pcprep.baselines.datasets import make_shape
+from pcprep.filters import simplify as S
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters.metrics import simplification_error
+from pcprep.filters.neighbors import build_tree, knn
 
 FAST = dict(n_atoms=60, max_iter=3, max_train=3000)
 

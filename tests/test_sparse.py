@@ -6,8 +6,8 @@ import pytest
 from scipy import sparse as sp
 from sklearn.linear_model import Lasso, orthogonal_mp_gram
 
-from filters import sparse
-from filters._validation import InvalidParameterError
+from pcprep.filters import sparse
+from pcprep import InvalidParameterError
 
 
 def _planted(d, S, m, k, seed):
@@ -152,7 +152,7 @@ def test_lasso_lars_kkt_on_many_structured_signals(solver_path):
 def test_compiled_and_numpy_paths_agree(monkeypatch):
     """The numba kernels and the NumPy reference give the same K-SVD dictionary
     and the same Lasso / OMP codes (up to rounding)."""
-    from filters import _kernels
+    from pcprep.filters import _kernels
 
     if not _kernels.HAVE_NUMBA:
         pytest.skip("numba not installed")

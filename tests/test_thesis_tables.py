@@ -9,8 +9,8 @@ import re
 
 import pytest
 
-from baselines import thesis_tables as tt
-from baselines.thesis_tables import Printed, get_table, table_markdown
+from pcprep.baselines import thesis_tables as tt
+from pcprep.baselines.thesis_tables import Printed, get_table, table_markdown
 
 TABLE_ITEMS = sorted(tt.TABLES.items())
 LABEL_LINE = ("Thesis' published figures (Leal Narváez 2020, {ref}; their data, MATLAB, "

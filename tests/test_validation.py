@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from filters._params import Param, resolve_params
-from filters._validation import (
+from pcprep.filters import Param, resolve_params
+from pcprep.filters._validation import (
     InvalidParameterError,
     PointCloudError,
     as_normals,
@@ -11,11 +11,11 @@ from filters._validation import (
 )
 
 PARAMS = (
-    Param("sigma_d", float, 3.0, "support radius", low=0.0, high=20.0, closed="right", unit="h"),
-    Param("n_iter", int, 10, "iterations", low=1, high=100, unit="count"),
-    Param("mode", str, "a", "mode", choices=("a", "b")),
-    Param("flag", bool, False, "a flag"),
-    Param("count", int, None, "target count", low=1, optional=True),
+    Param("sigma_d", float, low=0.0, high=20.0, closed="right", unit="h", default=3.0, help="support radius"),
+    Param("n_iter", int, low=1, high=100, unit="count", default=10, help="iterations"),
+    Param("mode", str, choices=("a", "b"), default="a", help="mode"),
+    Param("flag", bool, default=False, help="a flag"),
+    Param("count", int, low=1, optional=True, default=None, help="target count"),
 )
 
 

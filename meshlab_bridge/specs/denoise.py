@@ -4,7 +4,7 @@ denoise.py
 Registry declaration of the denoising family (thesis chapter 4).
 """
 
-from filters import denoise as _m
+from pcprep.filters import denoise as _m
 
 from ..registry import FilterSpec, register
 
@@ -25,10 +25,8 @@ register(FilterSpec(
         "Lengths are in units of the average spacing h."
     ),
     func=_m.denoise_l1_tv,
-    params=_m.PARAMS,
     kind="coord",
     mask_field="edge_mask",
     uses_normals=True,
-    thesis="ch.4, eqs (4.2)-(4.19), Algorithm 4.1",
-    extra={"example": {"n_iter": 2}},
+    example={"n_iter": 2},
 ))

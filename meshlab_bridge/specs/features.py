@@ -5,7 +5,7 @@ Registry declaration of the feature-detection family (thesis chapter 7):
 sharp features and hole boundaries.
 """
 
-from filters import features as _m
+from pcprep.filters import features as _m
 
 from ..registry import FilterSpec, register
 
@@ -27,13 +27,11 @@ register(FilterSpec(
         "per-vertex attribute 'score'."
     ),
     func=_m.detect_sharp_features,
-    params=_m.PARAMS_SHARP,
     kind="selection",
     mask_field="mask",
     scalar_field="score",
     uses_normals=False,
-    thesis="ch.7, eqs (7.1)-(7.4), (7.8)-(7.11), §7.3.5",
-    extra={"example": {"seed": 0}},
+    example={"seed": 0},
 ))
 
 register(FilterSpec(
@@ -53,11 +51,9 @@ register(FilterSpec(
         "vertex quality 1 (others 0)."
     ),
     func=_m.detect_hole_boundaries,
-    params=_m.PARAMS_HOLES,
     kind="selection",
     mask_field="mask",
     scalar_field="score",
     uses_normals=False,
-    thesis="ch.7, eqs (7.5)-(7.7), (7.12)-(7.13), §7.3.4",
-    extra={"example": {"seed": 0}},
+    example={"seed": 0},
 ))

@@ -4,7 +4,7 @@ saliency.py
 Registry declaration of the saliency family (thesis chapter 5).
 """
 
-from filters import saliency as _m
+from pcprep.filters import saliency as _m
 
 from ..registry import FilterSpec, register
 
@@ -24,9 +24,7 @@ register(FilterSpec(
         "MeshLab's curvature filters."
     ),
     func=_m.saliency_sparse_mdl,
-    params=_m.PARAMS,
     kind="scalar",
     scalar_field="saliency",
     uses_normals=True,
-    thesis="ch.5, eqs (5.2)-(5.7), §5.3.2",
 ))

@@ -4,7 +4,7 @@ simplify.py
 Registry declaration of the simplification family (thesis chapter 6).
 """
 
-from filters import simplify as _m
+from pcprep.filters import simplify as _m
 
 from ..registry import FilterSpec, register
 
@@ -24,11 +24,9 @@ register(FilterSpec(
         "generate_simplified_point_cloud does); their saliency Sf is its quality."
     ),
     func=_m.simplify_sdbs,
-    params=_m.PARAMS,
     kind="new_layer",
     index_field="keep_idx",
     scalar_field="score",
     uses_normals=True,
-    thesis="ch.6, eqs (6.1)-(6.11)",
-    extra={"example": {"ratio": 0.1}},
+    example={"ratio": 0.1},
 ))

@@ -1,0 +1,86 @@
+"""
+commands.py
+-----------
+The ``bench`` and ``report`` sub-commands of ``pcprep``.  The command line lives
+in ``pcprep.meshlab_bridge`` and must not import this layer, so these commands
+reach it through the ``pcprep.commands`` entry-point group (see pyproject.toml);
+each entry is a function that adds its sub-parser.  The harness needs the
+``report`` extra (CGAL's bindings, matplotlib): without it the commands say how
+to install it instead of failing on an import deep inside a harness.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+from pcprep.filters._validation import InvalidParameterError
+from pcprep.meshlab_bridge.specs import FAMILIES
+
+#: modules of the ``report`` extra, checked before a harness starts
+_EXTRA = ("CGAL", "matplotlib")
+
+
+def _check_extra() -> None:
+    missing = []
+    for mod in _EXTRA:
+        try:
+            import_module(mod)
+        except ImportError:
+            missing.append(mod)
+    if missing:
+        raise InvalidParameterError(
+            f"the benchmarks need {', '.join(missing)}: install them with "
+            "pip install 'pcprep[report]'")
+
+
+def _out(args) -> str:
+    """Quick runs go to their own folder so they never overwrite a full run."""
+    if args.out is not None:
+        return args.out
+    return "reports/quick" if args.quick else "reports"
+
+
+def _run_bench(args) -> None:
+    _check_extra()
+    mod = import_module(f"pcprep.baselines.bench_{args.family}")
+    fn = mod.run_speed if args.speed else mod.run
+    fn(quick=args.quick, seed=args.seed, out_dir=_out(args))
+
+
+def _run_report(args) -> None:
+    _check_extra()
+    from . import report
+
+    report.build(quick=args.quick, seed=args.seed, out_dir=_out(args),
+                 assemble_only=args.assemble_only, models=args.models)
+
+
+def add_bench(sub) -> None:
+    """``pcprep bench FAMILY``: one comparison harness, written under reports/."""
+    bench = sub.add_parser("bench", help="run one comparison harness; writes reports/")
+    bench.add_argument("family", choices=FAMILIES)
+    bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
+    bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
+    bench.add_argument("--out", default=None,
+                       help="output folder (default: reports, or reports/quick with --quick)")
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--quiet", action="store_true")
+    bench.set_defaults(_run=_run_bench)
+
+
+def add_report(sub) -> None:
+    """``pcprep report``: every harness, then reports/index.md and index.html."""
+    rep = sub.add_parser("report", help="run every harness and write reports/index.md + .html")
+    rep.add_argument("--quick", action="store_true",
+                     help="generated and pymeshlab-shipped data only; a few minutes")
+    rep.add_argument("--out", default=None,
+                     help="output folder (default: reports, or reports/quick with --quick)")
+    rep.add_argument("--models", default=None,
+                     help="folder of the public models (default: $PCPREP_SHARED_MODELS, else "
+                          "shared/data/models beside or above the current folder)")
+    rep.add_argument("--assemble-only", action="store_true",
+                     help="do not re-run the harnesses; assemble the index from the reports "
+                          "already in the output folder")
+    rep.add_argument("--seed", type=int, default=0)
+    rep.add_argument("--quiet", action="store_true")
+    rep.set_defaults(_run=_run_report)
