@@ -229,9 +229,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     (about a minute).  Full: five CAD solids and the bumpy plane, three noise
     conditions, 20000 points, plus the unverified side signal.
     """
-    out = Path(out_dir)
-    if not out.is_absolute():
-        out = harness.ROOT / out
+    out = harness.resolve_out_dir(out_dir)
     img = out / "img"
     shapes = ("cube", "bumpy_plane") if quick else CAD + SMOOTH
     conditions = CONDITIONS[:2] if quick else CONDITIONS

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from pcprep.filters._validation import InvalidParameterError, as_normals, as_points
+from pcprep.filters._validation import InvalidParameterError, as_normals, as_points, check_param
 from pcprep.filters.neighbors import centered
 
 log = logging.getLogger("pcprep")
@@ -86,33 +86,18 @@ def point_set_ids(ps) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 
 def _check_int(value, name: str, func: str, low: int) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise InvalidParameterError(f"{func}: {name} must be an integer, got {value!r}")
-    if int(value) < low:
-        raise InvalidParameterError(f"{func}: {name} must be >= {low}, got {value}")
-    return int(value)
+    return check_param(value, func=func, name=name, kind=int, low=low)
 
 
 def _check_real(value, name: str, func: str, low: float, high: float = math.inf,
                 low_open: bool = True) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(
-            f"{func}: {name} must be a number, got {value!r}") from exc
-    bad_low = v <= low if low_open else v < low
-    if not math.isfinite(v) or bad_low or v > high:
-        lo = "(" if low_open else "["
-        raise InvalidParameterError(
-            f"{func}: {name} must be in {lo}{low}, {high}], got {value!r}")
-    return v
+    return check_param(value, func=func, name=name, kind=float, low=low,
+                       high=None if math.isinf(high) else high,
+                       closed="right" if low_open else "both")
 
 
 def _check_count(count, n: int, func: str) -> int:
-    count = _check_int(count, "count", func, 1)
-    if count > n:
-        raise InvalidParameterError(f"{func}: count must be <= n = {n}, got {count}")
-    return count
+    return check_param(count, func=func, name="count", kind=int, low=1, high=n)
 
 
 # ----------------------------------------------------------------------------------------

@@ -12,9 +12,15 @@ to install it instead of failing on an import deep inside a harness.
 from __future__ import annotations
 
 from importlib import import_module
+from importlib.util import find_spec
 
 from pcprep.filters._validation import InvalidParameterError
 from pcprep.meshlab_bridge.specs import FAMILIES
+
+def benchmarked_families() -> tuple[str, ...]:
+    """The families of ``FAMILIES`` that have a ``bench_<family>`` module."""
+    return tuple(f for f in FAMILIES if find_spec(f"pcprep.baselines.bench_{f}") is not None)
+
 
 #: modules of the ``report`` extra, checked before a harness starts
 _EXTRA = ("CGAL", "matplotlib")
@@ -58,7 +64,7 @@ def _run_report(args) -> None:
 def add_bench(sub) -> None:
     """``pcprep bench FAMILY``: one comparison harness, written under reports/."""
     bench = sub.add_parser("bench", help="run one comparison harness; writes reports/")
-    bench.add_argument("family", choices=FAMILIES)
+    bench.add_argument("family", choices=benchmarked_families())
     bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
     bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
     bench.add_argument("--out", default=None,

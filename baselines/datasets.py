@@ -7,7 +7,7 @@ models of thesis §4.5 and hole cutting.  Triangle-mesh ground truth and loaders
 (pymeshlab's bundled samples, the optional shared model folder) are in
 ``meshes.py`` and re-exported here.
 
-Nothing here needs ``/work/shared`` at run time: the shared loader returns
+Nothing here needs the shared model folder at run time: the shared loader returns
 ``None`` (or raises, on request) when the folder is absent.
 
 Conventions

@@ -56,8 +56,6 @@ log = logging.getLogger("pcprep")
 DEFAULT_TIMEOUT = 600.0
 #: default time limit of :func:`measure`, seconds (MeshLab MLS at 1M takes ~7 min)
 MEASURE_TIMEOUT = 1800.0
-#: project root (``reports/`` is resolved against it)
-ROOT = Path(__file__).resolve().parent.parent
 
 _PICKLE_PROTOCOL = 5
 

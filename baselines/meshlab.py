@@ -25,7 +25,7 @@ import logging
 
 import numpy as np
 
-from pcprep.filters._validation import InvalidParameterError, as_normals, as_points
+from pcprep.filters._validation import InvalidParameterError, as_normals, as_points, check_param
 from pcprep.filters.neighbors import centered
 
 log = logging.getLogger("pcprep")
@@ -38,22 +38,11 @@ def _meshset():
 
 
 def _check_positive(value, name: str, func: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(
-            f"{func}: {name} must be a number, got {value!r}") from exc
-    if not np.isfinite(v) or v <= 0:
-        raise InvalidParameterError(f"{func}: {name} must be > 0, got {value!r}")
-    return v
+    return check_param(value, func=func, name=name, kind=float, low=0.0, closed="neither")
 
 
 def _check_count(count, n: int, func: str) -> int:
-    if isinstance(count, (bool, np.bool_)) or not isinstance(count, (int, np.integer)):
-        raise InvalidParameterError(f"{func}: count must be an integer, got {count!r}")
-    if not 1 <= int(count) <= n:
-        raise InvalidParameterError(f"{func}: count must be in [1, {n}], got {count}")
-    return int(count)
+    return check_param(count, func=func, name="count", kind=int, low=1, high=n)
 
 
 def _mls(kind: str, points, normals, params: dict) -> tuple[np.ndarray, np.ndarray]:

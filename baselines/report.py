@@ -21,11 +21,12 @@ import traceback
 from importlib import import_module
 from pathlib import Path
 
+from pcprep.meshlab_bridge.specs import FAMILIES
+
 from .harness import environment_info, resolve_out_dir, to_jsonable, write_report
 
 log = logging.getLogger("pcprep")
 
-FAMILIES = ("denoise", "simplify", "features", "saliency")
 TITLES = {
     "denoise": "Denoising (thesis ch. 4)",
     "simplify": "Simplification, SDBS (thesis ch. 6)",
@@ -38,7 +39,13 @@ def _run_step(family: str, speed: bool, quick: bool, seed: int, out_dir: str) ->
     name = f"speed_{family}" if speed else family
     t0 = time.perf_counter()
     try:
-        mod = import_module(f"pcprep.baselines.bench_{family}")
+        try:
+            mod = import_module(f"pcprep.baselines.bench_{family}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"pcprep.baselines.bench_{family}":
+                raise
+            log.info("report: the %s family has no benchmark", family)
+            return {"name": name, "status": "no benchmark", "error": None, "seconds": 0.0}
         fn = mod.run_speed if speed else mod.run
         log.info("report: running %s%s", name, " (quick)" if quick else "")
         fn(quick=quick, seed=seed, out_dir=out_dir)
@@ -140,7 +147,8 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
     md.append("| report | status | time (s) |")
     md.append("|---|---|---|")
     for s in steps:
-        status = s["status"] if s["status"] == "ok" else f"**FAILED**: {s['error']}"
+        status = (s["status"] if s["status"] in ("ok", "no benchmark")
+                  else f"**FAILED**: {s['error']}")
         link = (f"[{s['name']}]({_report_file(out, s['name'], quick).name})"
                 if s["status"] == "ok" else s["name"])
         md.append(f"| {link} | {status} | {s['seconds']:.1f} |")
@@ -158,12 +166,15 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
             md.append(f"- picture **FAILED**: {fail}")
         md.append("")
     for family in FAMILIES:
-        md.append(f"## {TITLES[family]}")
+        md.append(f"## {TITLES.get(family, family)}")
         md.append("")
         for name in (family, f"speed_{family}"):
             path = _report_file(out, name, quick)
             step = next(s for s in steps if s["name"] == name)
-            if step["status"] != "ok":
+            if step["status"] == "no benchmark":
+                md.append(f"{name}: this family has no benchmark.")
+                md.append("")
+            elif step["status"] != "ok":
                 md.append(f"**{name} FAILED**: {step['error']}")
                 md.append("")
             elif path.exists():
@@ -174,7 +185,7 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
         md.append(thesis)
     text = "\n".join(md) + "\n"
     data = {"mode": "quick" if quick else "full", "seed": seed, "environment": env,
-            "steps": steps, "figures": [str(p) for _, p in figs],
+            "steps": steps, "figures": [f"img/{p.name}" for _, p in figs],
             "figure_failures": fig_failures, "total_seconds": total}
     md_path, _ = write_report("index", text, to_jsonable(data), out_dir=str(out))
     (out / "index.html").write_text(markdown_to_html(text, title="pcprep comparison report"),

@@ -29,8 +29,10 @@ Every table is a module-level ``dict`` with the keys
     A list of ``dict`` rows, laid out like the printed table (wide format:
     one column per method where the thesis does so).
 ``source``
-    Thesis table / section and the line numbers in the text extraction
-    ``/work/shared/thesis/000_5cf9d2b526292ac8.txt``.
+    Thesis table / section and the line numbers in the thesis' plain-text
+    extraction named by :data:`THESIS_TEXT` (the project's shared folder keeps
+    it as ``shared/thesis/<THESIS_TEXT>``; the tests check every number against
+    it when it is there).
 ``notes``
     Transcription remarks: garbled cells, inconsistencies in the thesis, and
     what was done about them.
@@ -65,13 +67,24 @@ __all__ = [
     "FEATURES_TABLE_7_1",
     "TABLES",
     "DATASET_NAME",
-    "THESIS_FILE",
+    "THESIS_TEXT",
+    "thesis_text_path",
     "get_table",
     "table_markdown",
 ]
 
-#: Text extraction the line numbers in ``source`` and the row comments refer to.
-THESIS_FILE = "/work/shared/thesis/000_5cf9d2b526292ac8.txt"
+#: File name of the text extraction the line numbers in ``source`` and the row
+#: comments refer to.
+THESIS_TEXT = "000_5cf9d2b526292ac8.txt"
+
+
+def thesis_text_path():
+    """Path of the thesis text beside the shared model folder
+    (``shared/thesis/THESIS_TEXT``), or None when it is not there."""
+    from .meshes import shared_models_root
+
+    path = shared_models_root().parent.parent / "thesis" / THESIS_TEXT
+    return path if path.is_file() else None
 
 #: Thesis model name -> ``pcprep.baselines.datasets.make_shape`` name of the synthetic
 #: shape that imitates it (an imitation, not the thesis' point set).
@@ -116,7 +129,7 @@ class Printed(float):
 
 _N = Printed  # short alias for the data below
 
-_LINES = THESIS_FILE.rsplit("/", 1)[-1] + " lines"
+_LINES = THESIS_TEXT + " lines"
 
 # ---------------------------------------------------------------------------
 # Chapter 4: denoising

@@ -10,7 +10,8 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from pcprep.baselines.datasets import make_shape
+from pcprep.baselines.datasets import cut_holes, make_shape
+from pcprep.filters.metrics import precision_recall_f1
 from pcprep import InvalidParameterError, PointCloudError
 from pcprep.meshlab_bridge import registry
 from pcprep.meshlab_bridge.apply import apply_filter
@@ -26,6 +27,21 @@ N = 1500
 @pytest.fixture(scope="module")
 def part():
     return make_shape("cube", n=N, seed=3, rotate=True)
+
+
+@pytest.fixture(scope="module")
+def fixtures():
+    """Something to find and something not to: a CAD part (sharp edges, no
+    border), an open plane with three holes (borders, no edge) and a sphere
+    (neither); each with its truth for the two detectors."""
+    cube = make_shape("cube", n=4000, seed=3, rotate=True)
+    holed = cut_holes(make_shape("plane", n=4000, seed=4), n_holes=3, radius=6.0, seed=5)
+    sphere = make_shape("sphere", n=4000, seed=6)
+    return {"cube": cube, "holed plane": holed, "sphere": sphere}
+
+
+#: detector command -> (truth attribute of a Sample, fixture where it has positives)
+_DETECTORS = {"features": ("sharp", "cube"), "holes": ("rim", "holed plane")}
 
 
 def _example(spec):
@@ -186,3 +202,17 @@ def test_far_from_origin_coordinates_keep_their_precision(spec, part):
         else:
             assert np.allclose(far[key], val, atol=1e-6, rtol=1e-6) or \
                 np.corrcoef(far[key].ravel(), val.ravel())[0, 1] > 0.95, key
+
+
+@pytest.mark.parametrize("command", sorted(_DETECTORS))
+def test_detectors_find_their_features_and_nothing_where_there_is_none(command, fixtures):
+    spec = registry.get(command)
+    truth_field, positive = _DETECTORS[command]
+    for name, sample in fixtures.items():
+        mask = np.asarray(getattr(_call(spec, sample.points), spec.mask_field))
+        truth = getattr(sample, truth_field)
+        if name == positive:
+            assert precision_recall_f1(mask, truth)[2] > 0.8, name
+        else:
+            assert not truth.any()
+            assert mask.mean() < 0.03, (name, mask.mean())

@@ -175,11 +175,10 @@ _SPANS = {  # table -> (first, last) line of its data rows in the extraction
 }
 
 
-@pytest.mark.skipif(not os.path.exists(tt.THESIS_FILE),
-                    reason="thesis text not available")
+@pytest.mark.skipif(tt.thesis_text_path() is None, reason="thesis text not available")
 @pytest.mark.parametrize("name", sorted(_SPANS))
 def test_every_number_matches_the_thesis_text(name):
-    with open(tt.THESIS_FILE, encoding="utf-8") as fh:
+    with open(tt.thesis_text_path(), encoding="utf-8") as fh:
         lines = fh.read().split("\n")
     first, last = _SPANS[name]
     printed = []
