@@ -23,7 +23,7 @@ def benchmarked_families() -> tuple[str, ...]:
 
 
 #: modules of the ``report`` extra, checked before a harness starts
-_EXTRA = ("CGAL", "matplotlib")
+_EXTRA = ("CGAL", "matplotlib", "markdown_it")
 
 
 def _check_extra() -> None:

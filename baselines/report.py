@@ -195,8 +195,10 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
 
 
 # ---------------------------------------------------------------------------------------
-# a small Markdown → HTML renderer for what the reports contain (headings, paragraphs,
-# lists, tables, images, links, bold, code); no extra dependency, opens offline
+# Markdown → HTML with markdown-it-py (CommonMark + tables): raw HTML in the text is
+# escaped and unsafe link targets (javascript:, vbscript:, data: other than images) are
+# not made links, so a report built from other people's names and files cannot inject
+# script into the page
 # ---------------------------------------------------------------------------------------
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
@@ -206,68 +208,10 @@ text-align:left}img{max-width:100%}code{background:#f3f3f3;padding:0 3px}h1,h2,h
 1.4em}"""
 
 
-def _inline(text: str) -> str:
-    t = html.escape(text, quote=False)
-    t = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img alt="\1" src="\2">', t)
-    t = re.sub(r"\[([^\]]+)\]\(([^)]+)\)", r'<a href="\2">\1</a>', t)
-    t = re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
-    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
-    return t
-
-
 def markdown_to_html(md: str, title: str = "report") -> str:
-    """Render the subset of Markdown the reports use as a standalone HTML page."""
-    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
-           f"</title><style>{_CSS}</style></head><body>"]
-    lines = md.splitlines()
-    i = 0
-    para: list[str] = []
+    """Render Markdown as a standalone HTML page that opens offline."""
+    from markdown_it import MarkdownIt
 
-    def flush():
-        if para:
-            out.append("<p>" + " ".join(_inline(p) for p in para) + "</p>")
-            para.clear()
-
-    while i < len(lines):
-        line = lines[i]
-        if line.startswith("```"):
-            flush()
-            j = i + 1
-            while j < len(lines) and not lines[j].startswith("```"):
-                j += 1
-            out.append("<pre><code>" + html.escape("\n".join(lines[i + 1:j])) + "</code></pre>")
-            i = j + 1
-            continue
-        m = re.match(r"^(#{1,6}) (.*)", line)
-        if m:
-            flush()
-            n = len(m.group(1))
-            out.append(f"<h{n}>{_inline(m.group(2))}</h{n}>")
-        elif line.startswith("|") and i + 1 < len(lines) and re.match(r"^\|[\s:|-]+\|$",
-                                                                        lines[i + 1]):
-            flush()
-            head = [c.strip() for c in line.strip("|").split("|")]
-            out.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>")
-            i += 2
-            while i < len(lines) and lines[i].startswith("|"):
-                cells = [c.strip() for c in lines[i].strip().strip("|").split("|")]
-                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
-                i += 1
-            out.append("</table>")
-            continue
-        elif re.match(r"^\s*[-*] ", line):
-            flush()
-            out.append("<ul>")
-            while i < len(lines) and re.match(r"^\s*[-*] ", lines[i]):
-                out.append("<li>" + _inline(re.sub(r"^\s*[-*] ", "", lines[i])) + "</li>")
-                i += 1
-            out.append("</ul>")
-            continue
-        elif not line.strip():
-            flush()
-        else:
-            para.append(line)
-        i += 1
-    flush()
-    out.append("</body></html>")
-    return "\n".join(out)
+    body = MarkdownIt("commonmark", {"html": False}).enable("table").render(md)
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+            f"</title><style>{_CSS}</style></head><body>\n{body}</body></html>")

@@ -86,3 +86,32 @@ def test_no_absolute_path_of_one_machine_is_committed():
             continue
         hit = machine.search(path.read_text(encoding="utf-8", errors="replace"))
         assert hit is None, f"{path.relative_to(ROOT)} holds {hit.group(0)!r}"
+
+
+def test_the_models_folder_is_found_from_where_the_user_runs(tmp_path, monkeypatch):
+    """An installed package lives in site-packages, so the shared models are
+    looked up from the current folder and its parents (or given explicitly)."""
+    from pcprep.baselines import datasets, meshes
+
+    models = tmp_path / "shared" / "data" / "models"
+    models.mkdir(parents=True)
+    checkout = tmp_path / "main"
+    checkout.mkdir()
+    monkeypatch.delenv("PCPREP_SHARED_MODELS", raising=False)
+    monkeypatch.setattr(meshes, "_MODELS_ROOT", None)
+    monkeypatch.chdir(checkout)
+    assert datasets.shared_models_root() == models
+    assert datasets.models_hint() is None
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    monkeypatch.setenv("PCPREP_SHARED_MODELS", str(other))
+    assert datasets.shared_models_root() == other
+    given = tmp_path / "given"
+    given.mkdir()
+    assert datasets.use_models_root(given) == given.resolve()
+    assert datasets.shared_models_root() == given.resolve()
+    monkeypatch.setattr(meshes, "_MODELS_ROOT", None)
+    monkeypatch.setenv("PCPREP_SHARED_MODELS", str(tmp_path / "missing"))
+    assert "--models" in datasets.models_hint()
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        datasets.use_models_root(tmp_path / "missing")

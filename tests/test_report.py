@@ -54,14 +54,29 @@ def test_tiny_report_structure(tmp_path, monkeypatch):
     html = (tmp_path / "index.html").read_text()
     separators = [ln for ln in text.splitlines() if ln.startswith("|---")]
     assert html.count("<table>") == len(separators) >= 10
-    assert '<img alt="tiny picture"' in html
+    assert '<img src="img/tiny.png" alt="tiny picture"' in html
     assert (tmp_path / "index.json").exists()
 
 
 def test_markdown_to_html_escapes_and_keeps_structure():
     html = report.markdown_to_html("# A <b>\n\n| x | y |\n|---|---|\n| 1 | **2** |\n\n- one\n")
     assert "<h1>A &lt;b&gt;</h1>" in html
-    assert "<td><b>2</b></td>" in html and "<li>one</li>" in html
+    assert "<td><strong>2</strong></td>" in html and "<li>one</li>" in html
+
+
+def test_markdown_to_html_lets_no_script_through():
+    """Names and paths in a report come from users' files: raw HTML, attribute
+    quotes and script URLs must not become live markup."""
+    html = report.markdown_to_html(
+        '![x" onerror="alert(1)](a.png)\n\n[click](javascript:alert(1))\n\n'
+        '<script>alert(1)</script>\n\n<img src=x onerror=alert(1)>\n\n'
+        '[ok](denoise.html)\n')
+    body = html.split("<body>", 1)[1]
+    assert "<script" not in body and "<img src=x" not in body
+    assert 'onerror="alert' not in body and "javascript:" not in body.replace(
+        "[click](javascript:alert(1))", "")
+    assert '<a href="denoise.html">ok</a>' in body
+    assert '<img src="a.png" alt="x&quot; onerror=&quot;alert(1)"' in body
 
 
 def test_panels_write_small_pictures(tmp_path):
