@@ -4,12 +4,18 @@ import numpy as np
 import pymeshlab
 import pytest
 
+from pcprep import InvalidParameterError, PointCloudError, denoise_l1_tv
 from pcprep.baselines.datasets import add_noise, make_shape
-from pcprep import InvalidParameterError, PointCloudError
-from pcprep.filters.denoise import PARAMS, DenoiseResult, denoise_l1_tv, energy_l1_tv
-from pcprep.filters.metrics import mad_degrees
+from pcprep.filters.denoise import DenoiseResult, energy_l1_tv
+from pcprep.filters.metrics import mad_degrees, precision_recall_f1
 from pcprep.filters.neighbors import pca_normals
 from helpers import random_rotation
+
+
+def _jaccard(a, b):
+    """|a ∩ b| / |a ∪ b|; 0 when both masks are empty, so two empty masks never agree."""
+    union = np.count_nonzero(a | b)
+    return np.count_nonzero(a & b) / union if union else 0.0
 
 
 def _noisy_plane(n=3000, sigma=0.3, seed=0):
@@ -77,8 +83,10 @@ def test_noisy_cube_keeps_edges(cube_result, noisy_cube):
     flat = near > 4.0
     assert mad_degrees(s.normals[flat], r.normals[flat]) < 0.4 * mad_degrees(
         s.normals[flat], pca[flat])
-    # edge detector: edge points concentrate at the edges
-    assert r.edge_mask.any()
+    # edge detector: edge points concentrate at the edges (F1 0.55 against the
+    # crease points, 97 % of the detections within 2h of an edge)
+    assert precision_recall_f1(r.edge_mask, sharp)[2] > 0.45
+    assert precision_recall_f1(r.edge_mask, near < 2.0)[0] > 0.9
     assert np.median(near[r.edge_mask]) < 1.5
     assert r.edge_mask[flat].mean() < 0.02
 
@@ -127,18 +135,18 @@ def test_invariant_to_scale_rigid_motion_and_order(noisy_cube):
     base = denoise_l1_tv(pts, n_iter=3)
     scaled = denoise_l1_tv(1000.0 * pts + 1e4, n_iter=3)
     assert np.abs((scaled.points - 1e4) / 1000.0 - base.points).max() < 1e-6 * base.h
-    assert np.array_equal(scaled.edge_mask, base.edge_mask)
+    assert _jaccard(scaled.edge_mask, base.edge_mask) == 1.0
     rot = random_rotation(5)
     t = np.array([1e3, -2e3, 5e2])
     moved = denoise_l1_tv(pts @ rot.T + t, n_iter=3)
     assert _close((moved.points - t) @ rot, base.points, base.h)
     cosines = np.abs(np.einsum("ij,ij->i", moved.normals @ rot, base.normals))
     assert np.median(cosines) > 1 - 1e-9
-    assert (moved.edge_mask != base.edge_mask).mean() < 0.01
+    assert _jaccard(moved.edge_mask, base.edge_mask) > 0.97
     perm = np.random.default_rng(1).permutation(len(pts))
     shuf = denoise_l1_tv(pts[perm], n_iter=3)
     assert _close(shuf.points, base.points[perm], base.h)
-    assert (shuf.edge_mask != base.edge_mask[perm]).mean() < 0.01
+    assert _jaccard(shuf.edge_mask, base.edge_mask[perm]) > 0.97
 
 
 def test_thesis_l1_norm_is_reachable(noisy_cube):
@@ -202,7 +210,7 @@ def test_registry_filter_on_meshset(noisy_cube):
     assert m.vertex_number() == len(pts)
     assert np.allclose(m.vertex_matrix(), direct.points)
     assert np.allclose(m.vertex_normal_matrix(), direct.normals, atol=1e-6)
-    assert np.array_equal(m.vertex_selection_array(), direct.edge_mask)
+    assert _jaccard(m.vertex_selection_array(), direct.edge_mask) == 1.0
     assert out["selected"] == int(direct.edge_mask.sum())
 
 
@@ -223,6 +231,7 @@ def test_edge_correction_moves_edge_points_within_rho(noisy_cube):
     # with the final projection, corrected edge points keep their corrected place
     both = denoise_l1_tv(noisy, n_iter=1, edge_correction=True)
     assert both.n_corrected == on.n_corrected
+    assert _jaccard(both.edge_mask, on.edge_mask) == 1.0
     assert np.allclose(both.points[both.edge_mask], on.points[on.edge_mask])
 
 
@@ -251,3 +260,26 @@ def test_normals_consistently_oriented_without_hint():
     r = denoise_l1_tv(noisy, n_iter=2)
     side = np.sign(np.einsum("ij,ij->i", r.normals, r.points))
     assert abs(side.sum()) == len(side)  # all outward or all inward
+
+
+def test_takes_no_seed():
+    """The filter draws no random numbers, so it takes no seed (project policy)."""
+    _, noisy = _noisy_plane(n=200)
+    assert "seed" not in {p.name for p in denoise_l1_tv.params}
+    with pytest.raises(InvalidParameterError, match="seed"):
+        denoise_l1_tv(noisy, seed=0)
+
+
+def test_private_config_path_equals_the_public_call(noisy_cube):
+    """The path a harness or a preset uses: a config whose defaults are the
+    signature's, changed with dataclasses.replace."""
+    from dataclasses import asdict, replace
+
+    from pcprep.filters.denoise import _DEFAULTS, _denoise
+
+    assert asdict(_DEFAULTS) == {p.name: p.default for p in denoise_l1_tv.params}
+    pts = noisy_cube[1][:1500]
+    a = _denoise(pts, None, replace(_DEFAULTS, n_iter=2, tv_norm="l1"))
+    b = denoise_l1_tv(pts, n_iter=2, tv_norm="l1")
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.normals, b.normals)
+    assert _jaccard(a.edge_mask, b.edge_mask) == 1.0

@@ -1,0 +1,311 @@
+"""
+_denoise_steps.py
+-----------------
+The steps of Algorithm 4.1 for :func:`pcprep.filters.denoise.denoise_l1_tv`,
+each a pass over all points at fixed positions: the initial normals n⁰ (4.9),
+one inner pass (energy (4.5), τ step (4.14), normal step (4.10)-(4.12), normal
+variation (4.17)), the inner loop, and the edge correction (4.18)-(4.19).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+
+from ._denoise_kernels import (CHUNK, F32, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
+                               _run_chunks, _smallest_eigvec, _tau_irls, _tv)
+
+#: init passes followed by the candidate selection
+SELECT_PASSES = 1
+
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+# ---------------------------------------------------------------------------
+# n⁰ (4.6)-(4.9)
+
+def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
+    """n⁰ by the reweighted eigen-iteration (4.9), with the offset τ of (4.5).
+
+    Pass 1 is θ-weighted PCA (ω = θ, n = 0).  Then every point takes, among its
+    own normal and those of ``n_cand`` neighbours spread over its list, the one
+    of lowest robust loss Σ_j θ(1 − ψ) (τ by (4.14) for each candidate).  Later
+    passes take the smallest eigenvector of Σ_j ω_j (c_i − p_j)(c_i − p_j)ᵀ with
+    c_i = p_i − τ_i n_i and ω = ψθ/|h_j − τ_i| (θ where |h_j − τ_i| < GUARD).
+    """
+    n = len(ctx.x)
+    normals = np.zeros((n, 3))
+    tau = np.zeros(n)
+    k = ctx.idx.shape[1]
+    cols = np.unique(np.linspace(1, k - 1, min(n_cand, k - 1)).round().astype(int))
+    for it in range(init_iter):
+        parts = _run_chunks(partial(_eigen_pass, ctx, normals, tau, first=it == 0), n)
+        new = np.concatenate([q[0] for q in parts], axis=0)
+        tau = np.concatenate([q[1] for q in parts])
+        if it > 0:  # keep each normal's sign from pass to pass
+            flip = np.einsum("ij,ij->i", new, normals) < 0
+            new[flip] *= -1.0
+        normals = new
+        if n_cand > 0 and it < SELECT_PASSES:
+            parts = _run_chunks(partial(_select_candidates, ctx, normals, cols), n)
+            normals = np.concatenate([q[0] for q in parts], axis=0)
+            tau = np.concatenate([q[1] for q in parts])
+    return normals
+
+
+def _eigen_pass(ctx: _Ctx, normals, tau, s: int, e: int, first: bool):
+    """One pass of (4.9) on rows s:e: (normals, τ)."""
+    d, _, _, theta = _geometry(ctx, s, e)
+    if first:
+        wsum = theta.sum(axis=1, keepdims=True)
+        om = theta / wsum
+        dc = [da - _rowsum(om * da)[:, None].astype(F32) for da in d]
+        t_new = np.zeros(e - s)
+    else:
+        n_i = normals[s:e]
+        hgt = _dot(d, n_i)
+        t_new = _tau_irls(hgt, tau[s:e], theta, ctx.sh2)
+        res = hgt - t_new.astype(F32)[:, None]
+        om = _eta(res, _psi(res, ctx.sh2), theta)
+        dc = [d[a] - (t_new * n_i[:, a]).astype(F32)[:, None] for a in range(3)]
+    wd = [om * dc[a] for a in range(3)]
+    cov = [_rowsum(wd[a] * dc[b]) for a, b in _UPPER]
+    return _smallest_eigvec(*cov), t_new
+
+
+def _select_candidates(ctx: _Ctx, normals, cols, s: int, e: int):
+    """Rows s:e keep, of their own normal and those of the neighbours ``cols``,
+    the one of lowest Welsch loss Σ θ(1 − ψ): (normals, τ)."""
+    d, _, valid, theta = _geometry(ctx, s, e)
+    cand = np.concatenate([normals[s:e, None, :], normals[ctx.idx[s:e][:, cols]]], axis=1)
+    ok = np.concatenate([np.ones((e - s, 1), bool), valid[:, cols]], axis=1)
+    c32 = cand.astype(F32)
+    hgt = (d[0][:, None, :] * c32[:, :, 0:1] + d[1][:, None, :] * c32[:, :, 1:2]
+           + d[2][:, None, :] * c32[:, :, 2:3])
+    th = theta[:, None, :]
+    # τ from 0, as in Algorithm 4.1: the search favours planes near p_i
+    t = _tau_irls(hgt, np.zeros(hgt.shape[:2], F32), th, ctx.sh2).astype(F32)
+    res = hgt - t[..., None]
+    # (4.3) itself redescends to 0 and would prefer a plane that misses every neighbour
+    loss = ((1.0 - _psi(res, ctx.sh2)) * th).sum(axis=2, dtype=np.float64)
+    loss[~ok] = np.inf
+    best = np.argmin(loss, axis=1)
+    rows = np.arange(e - s)
+    return cand[rows, best], t[rows, best].astype(np.float64)
+
+
+# ---------------------------------------------------------------------------
+# the inner loop
+
+def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float):
+    """Alternate τ and n steps at fixed positions (Algorithm 4.1, inner loop).
+
+    τ starts at 0. Every pass returns the energy of the current state and a
+    proposal; a proposal that raised the total energy (4.5) is undone and ends
+    the loop. The loop also ends when the RMS change of the tentative positions
+    p − τn falls below ``tol``. Returns normals, τ, (V_n, a, c) and the energy
+    history.
+    """
+    n = len(ctx.x)
+    tau = np.zeros(n)
+    hist = []
+    prev = None
+    for k in range(inner_iter + 1):
+        last = k == inner_iter
+        e_i, n_next, t_next, vn = _inner_pass(ctx, nrm, tau, propose=not last, vn=last)
+        e_tot = float(e_i.sum())
+        if hist and e_tot > hist[-1]:
+            nrm, tau = prev  # the parallel step raised (4.5): undo it and stop
+            _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            break
+        hist.append(e_tot)
+        if last:
+            break
+        step = (ctx.x - t_next[:, None] * n_next) - (ctx.x - tau[:, None] * nrm)
+        move = float(np.sqrt(np.mean(np.square(step).sum(axis=1))))
+        prev = (nrm, tau)
+        nrm, tau = n_next, t_next
+        if move < tol:
+            e_i, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            e_tot = float(e_i.sum())
+            if e_tot > hist[-1]:
+                nrm, tau = prev
+                _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
+            else:
+                hist.append(e_tot)
+            break
+    return nrm, tau, vn, tuple(hist)
+
+
+def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
+                vn: bool = False):
+    """One pass over all points at fixed positions.
+
+    Returns the per-point energy (4.5) of the current state ``(normals, tau)``;
+    when ``propose`` also the next state: the IRLS τ step (4.14) at the current
+    normals (kept per point only if it lowers the point's fidelity), then one
+    proximal-gradient normal step (4.10)-(4.12) at the new τ.  With ``vn`` also
+    the normal variation V_n (4.17) and the intercept a and curvature c of the
+    height fit h ≈ a + cρ².
+    """
+    n = len(ctx.x)
+    energy = np.zeros(n)
+    new_n = np.zeros((n, 3)) if propose else None
+    new_t = np.zeros(n) if propose else None
+    vnorm = np.zeros(n) if vn else None
+    offset = np.zeros(n) if vn else None
+    curv = np.zeros(n) if vn else None
+    nt = np.ascontiguousarray(normals.T, dtype=F32)
+
+    def kernel(s, e):
+        d, d2, valid, theta = _geometry(ctx, s, e)
+        idx = ctx.idx[s:e]
+        n_i = normals[s:e]
+        t_i = tau[s:e]
+        nb = [np.take(nt[a], idx) for a in range(3)]
+        tvmask = valid.astype(F32)
+        tvmask[:, 0] = 0.0  # ‖n_i − n_i‖ = 0: the point itself adds nothing
+        cnt = _rowsum(tvmask)
+        hgt = _dot(d, n_i)
+        res = hgt - t_i.astype(F32)[:, None]
+        psi = _psi(res, ctx.sh2)
+        ares = np.abs(res)
+        fid = _rowsum(ares * psi * theta)
+        al, w, tv = _tv(ctx, n_i, nb, tvmask)
+        energy[s:e] = fid + ctx.lam * tv
+        if vn:
+            vnorm[s:e] = _variation(n_i, al, tvmask, cnt, ctx.sn2)
+            offset[s:e], curv[s:e] = _height_fit(res, psi, theta, d2, hgt, t_i)
+        if not propose:
+            return
+        t_new, res, psi = _tau_step(hgt, res, psi, theta, fid, t_i, ctx.sh2)
+        new_t[s:e] = t_new
+        new_n[s:e] = _normal_step(ctx, n_i, d, d2, res, psi, theta, al, w, cnt)
+
+    _run_chunks(kernel, n)
+    return energy, new_n, new_t, (vnorm, offset, curv) if vn else None
+
+
+def _variation(n_i, al, tvmask, cnt, sn2: float) -> np.ndarray:
+    """V_n (4.17): mean of exp(−‖n_i − n_j‖²/(2σ_n²)) over the neighbours."""
+    diff2 = np.square(n_i[:, 0:1].astype(F32) - al[0])
+    diff2 += np.square(n_i[:, 1:2].astype(F32) - al[1])
+    diff2 += np.square(n_i[:, 2:3].astype(F32) - al[2])
+    wn = np.exp(diff2 * F32(-1.0 / (2.0 * sn2)))
+    wn *= tvmask
+    return np.where(cnt > 0, _rowsum(wn) / np.maximum(cnt, 1), 1.0)
+
+
+def _height_fit(res, psi, theta, d2, hgt, t_i):
+    """Intercept a and curvature c of the η-weighted fit h_j ≈ a + cρ_j² (ρ_j the
+    tangential distance); a replaces τ in the position update."""
+    eta = _eta(res, psi, theta)
+    rho2 = np.maximum(d2 - hgt * hgt, 0.0)
+    s0, s1, s2 = _rowsum(eta), _rowsum(eta * rho2), _rowsum(eta * rho2 * rho2)
+    b0, b1 = _rowsum(eta * hgt), _rowsum(eta * rho2 * hgt)
+    det = s0 * s2 - s1 * s1
+    good = det > 1e-9 * np.maximum(s0 * s2, 1e-300)
+    a = np.where(good, (b0 * s2 - b1 * s1) / np.where(good, det, 1.0), t_i)
+    c = np.where(good, (s0 * b1 - s1 * b0) / np.where(good, det, 1.0), 0.0)
+    return a, c
+
+
+def _tau_step(hgt, res, psi, theta, fid, t_i, sh2: float):
+    """One IRLS sweep of (4.14) from τ_i, kept only where it does not raise the
+    fidelity term: (τ, residuals h − τ, ψ) of the new state."""
+    eta = _eta(res, psi, theta)
+    den = _rowsum(eta)
+    num = _rowsum(eta * hgt)
+    t_new = np.where(den > 0, num / np.where(den > 0, den, 1.0), t_i)
+    res = hgt - t_new.astype(F32)[:, None]
+    psi = _psi(res, sh2)
+    f_new = _rowsum(np.abs(res) * psi * theta)
+    keep = f_new > fid
+    if keep.any():
+        t_new[keep] = t_i[keep]
+        res[keep] = hgt[keep] - t_i[keep].astype(F32)[:, None]
+        psi[keep] = _psi(res[keep], sh2)
+    return t_new, res, psi
+
+
+def _normal_step(ctx: _Ctx, n_i, d, d2, res, psi, theta, al, w, cnt) -> np.ndarray:
+    """Gradient step on E_f (4.10) with step 1/L of its IRLS majoriser, then the
+    proximal average (4.11)-(4.12) of the TV term; unit normals."""
+    eta = _eta(res, psi, theta)
+    lip = _rowsum(eta * d2)
+    eta *= res
+    grad = np.stack([_rowsum(eta * d[a]) for a in range(3)], axis=1)
+    gamma = np.where(lip > 0, 1.0 / np.where(lip > 0, lip, 1.0), 0.0)
+    half = n_i - gamma[:, None] * grad
+    # proximal step on d_ij = n_i − n_j, averaged over j
+    thr = w * (gamma * ctx.lam * cnt).astype(F32)[:, None]
+    h32 = half.astype(F32)
+    dd = [h32[:, a:a + 1] - al[a] for a in range(3)]
+    if ctx.l1:  # thesis (4.12): per component, n_j + soft(d) = n_i − clip(d, ±t)
+        for a in range(3):
+            np.minimum(dd[a], thr, out=dd[a])
+            np.maximum(dd[a], -thr, out=dd[a])
+    else:  # vector soft threshold: n_j + soft(d) = n_i − d·min(1, t/‖d‖)
+        ln = np.sqrt(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2])
+        fac = np.minimum(thr / np.maximum(ln, F32(1e-30)), F32(1.0))
+        for a in range(3):
+            dd[a] *= fac
+    cand = half - np.stack([_rowsum(dd[a]) for a in range(3)], axis=1) \
+        / np.maximum(cnt, 1)[:, None]
+    norm = np.linalg.norm(cand, axis=1)
+    ok = norm > 1e-12
+    return np.where(ok[:, None], cand / np.where(ok, norm, 1.0)[:, None], n_i)
+
+
+# ---------------------------------------------------------------------------
+# after the inner loop
+
+def _smooth_curvature(ctx: _Ctx, normals: np.ndarray, curv: np.ndarray) -> np.ndarray:
+    """θ-weighted mean over N_g(p_i) of the curvatures c_j of the fits
+    h ≈ a + cρ², each sign-aligned to n_i (c flips with the normal's sign)."""
+    out = np.empty(len(curv))  # noqa: NPY-empty -- every chunk writes its rows
+
+    def kernel(s, e):
+        _, _, _, theta = _geometry(ctx, s, e)
+        idx = ctx.idx[s:e]
+        sgn = np.einsum("ij,ikj->ik", normals[s:e], normals[idx]) < 0
+        c = np.where(sgn, -curv[idx], curv[idx])
+        out[s:e] = (theta * c).sum(axis=1) / np.maximum(theta.sum(axis=1), 1e-300)
+
+    _run_chunks(kernel, len(curv))
+    return out
+
+
+def _edge_correct(ctx: _Ctx, normals: np.ndarray, edge: np.ndarray, rho: float,
+                  delta: float) -> int:
+    """Edge-point correction (4.18)-(4.19), in place on ``ctx.x``.
+
+    For every edge point, the nearest neighbour whose normal differs by more
+    than σ_n gives the plane (p_j, n_j); d = n_jᵀ(p_i − p_j) and, if
+    δ < |d| < ρ, p_i ← p_i − d n_j.  All edge points use the positions from
+    before the correction.  Returns the number of points moved.
+    """
+    rows = np.flatnonzero(edge)
+    if rows.size == 0:
+        return 0
+    moved = np.zeros(len(rows), dtype=bool)
+    shift = np.zeros((len(rows), 3))
+    for s in range(0, len(rows), CHUNK):
+        r = rows[s:s + CHUNK]
+        idx = ctx.idx[r, 1:]
+        d = ctx.x[r, None, :] - ctx.x[idx]
+        d2 = np.einsum("ckd,ckd->ck", d, d)
+        nbn = normals[idx]
+        c = np.abs(np.einsum("ckd,cd->ck", nbn, normals[r]))
+        other = (c < ctx.cos_n) & (d2 <= ctx.r2)
+        has = other.any(axis=1)
+        jpos = np.argmin(np.where(other, d2, np.inf), axis=1)
+        sel = np.arange(len(r))
+        nj = nbn[sel, jpos]
+        dproj = np.einsum("cd,cd->c", d[sel, jpos], nj)
+        move = has & (np.abs(dproj) > delta) & (np.abs(dproj) < rho)
+        moved[s:s + CHUNK] = move
+        shift[s:s + CHUNK] = np.where(move[:, None], dproj[:, None] * nj, 0.0)
+    ctx.x[rows] -= shift
+    return int(moved.sum())
