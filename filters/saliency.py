@@ -2,27 +2,14 @@
 saliency.py
 -----------
 Point-cloud saliency by local sparse coding and the MDL principle, thesis
-chapter 5, eqs (5.2)-(5.7).
-
-Per point p_i (neighbourhood N_g(p_i) = points within radius r):
-
-1. descriptor F = (n_x, n_y, n_z, K, d): oriented unit normal, Gaussian
-   curvature K of a local quadric fit (made dimensionless as K r²), and the
-   global distinctness d (5.4);
-2. neighbourhood descriptor F̄_i = mean of F over N_g(p_i) (5.2);
-3. surrounding neighbourhoods (§5.3.2.2): N_g(p_i) is projected on its PCA
-   tangent plane, rays at a fixed angular step 2π/m are cast to the 1-ring
-   (length r), and the neighbour nearest each ray end lends its F̄ as an atom;
-4. Lasso coding of F̄_i against the m atoms (5.6), solved for all points at
-   once by :func:`pcprep.filters.lasso_batched.lasso_batched`;
-5. neighbourhood saliency S_T = N(‖α‖₀) · N(‖F̄_i − Dα‖₁) (5.7) with
-   ``measure="mdl"``, or the residual term N(‖F̄_i − Dα‖₁) alone (the default,
-   see the function's Notes), accumulated over the overlapping neighbourhoods
-   that contain each point: by default their 10 % quantile (a robust minimum,
-   see Notes), or their mean (``accumulation="mean"``).
-
-Everything is vectorised over points and chunked; one k-NN query serves every
-step (plus the one of the MST normal orientation when normals are not given).
+chapter 5, eqs (5.2)-(5.7): each neighbourhood's mean descriptor (normal,
+Gaussian curvature, global distinctness) is Lasso-coded against the mean
+descriptors of the neighbourhoods at the ends of rays cast in its tangent plane;
+the coding residual (with ``measure="mdl"`` times the code's sparsity) is the
+neighbourhood's saliency, accumulated over the neighbourhoods that contain each
+point.  One k-NN query serves every step; the passes are vectorised over points
+and chunked.  The decisions behind each rule, with their measurements, are in
+docs/decisions/saliency.md.
 """
 
 from __future__ import annotations
@@ -72,7 +59,7 @@ class SaliencyResult:
     sparsity : (n,) int
         ‖α‖₀ of each neighbourhood's code (S_M).
     residual : (n,) float
-        Reconstruction residual (S_I; see Notes for the norm).
+        Reconstruction residual S_I (the normal block counted by its Euclidean length).
     descriptors : (n, 5) float
         Neighbourhood descriptors F̄_i = (n̄, K̄ r², d̄).
     normals : (n, 3) float
@@ -87,7 +74,7 @@ class SaliencyResult:
         Neighbourhood radius r in input units.
     n_unconverged : int
         Lasso problems not certified optimal within ``LASSO_ITER`` sweeps (their
-        descriptors are near-duplicates; see Notes).
+        atoms are near-duplicates).
     """
 
     saliency: np.ndarray
@@ -221,9 +208,9 @@ def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
     with the chord-mirror agreement (``mirror=True``) on the ``k`` nearest
     neighbours already held in ``hood`` (no new k-NN query; neighbours beyond
     the radius still join the graph, so a sparse region does not fall apart
-    into components).  Hoppe's plain n_i·n_j flips whole faces of solids with
-    sharp thin tips (12-45 % of the "star" normals; see the Notes of
-    :func:`saliency_sparse_mdl`)."""
+    into components).  The mirror admits the neighbour's normal reflected in the
+    plane bisecting the chord, which keeps solids with thin sharp tips from
+    flipping whole faces (docs/decisions/saliency.md, "Normal orientation")."""
     kk = min(k + 1, hood.idx.shape[1])
     return orient_normals_mst(points, normals, k=kk - 1, neighbors=hood.idx[:, 1:kk],
                               mirror=True)
@@ -264,177 +251,62 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
                         alpha: float = 0.9, measure: str = "residual",
                         accumulation: str = "quantile", acc_quantile: float = 0.1,
                         k_max: int = 32) -> SaliencyResult:
-    """Saliency of every point by local sparse coding and MDL (thesis ch.5).
+    """Saliency of every point by local sparse coding and MDL (Leal Narváez 2020, ch. 5).
+
+    Per point: the descriptor F = (n, K r², d) — oriented unit normal, Gaussian
+    curvature K of a local quadric, global distinctness d (5.4); its mean F̄_i over
+    the radius-r neighbourhood N_g(p_i) (5.2); a dictionary D of the F̄_j of the
+    ``n_rays`` neighbours nearest the ends of rays of length r in the PCA tangent
+    plane (§5.3.2.2); the Lasso code α of F̄_i (5.6); the neighbourhood saliency
+    S_T = N(‖F̄_i − Dα‖₁), or N(‖α‖₀)·N(‖F̄_i − Dα‖₁) (5.7), with N(·) division by
+    the maximum; and the point saliency, a low quantile or the mean of the S_T of
+    the neighbourhoods containing the point.  Lengths are in units of h (mean
+    distance to the 6 nearest neighbours).
 
     Parameters
     ----------
     points : (n, 3) float
         The cloud (n ≥ 10).
     normals : (n, 3) float, optional
-        Normals; their sign matters (see Notes).  Estimated by PCA and oriented
-        by MST propagation when None.
+        Oriented normals, used as given; None: PCA normals oriented by MST.
     radius : float, default=3.0
-        r: neighbourhood radius and ray length, in units of h (mean distance to
-        the 6 nearest neighbours).
+        r: neighbourhood radius and ray length.
     n_rays : int, default=8
-        m: rays in the tangent plane = atoms per dictionary.
+        m: rays in the tangent plane, i.e. atoms per dictionary.
     alpha : float, default=0.9
-        λ of eq. (5.6), ‖x − Dα‖₂² + λ‖α‖₁ (the thesis value).
+        λ of (5.6), ‖x − Dα‖₂² + λ‖α‖₁ (the thesis' value).
     measure : {"residual", "mdl"}, default='residual'
-        Neighbourhood saliency: the coding residual N(S_I), or the thesis'
-        product N(S_M)·N(S_I) of eq. (5.7) (see Notes).
+        Neighbourhood saliency: the coding residual, or the thesis' product (5.7).
     accumulation : {"quantile", "mean"}, default='quantile'
-        How the neighbourhood saliencies are accumulated at each point: the
-        ``acc_quantile`` quantile of the S_T of the neighbourhoods containing
-        it, or their mean (see Notes).
+        Point saliency from the neighbourhoods containing it: a quantile, or the mean.
     acc_quantile : float, default=0.1
         The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
-        Cap on the neighbours within the radius (the nearest are kept).
+        Most neighbours kept within the radius (the nearest).
 
     Returns
     -------
     SaliencyResult
-        ``saliency`` is in [0, 1]; 1 at the most salient point.
+        ``saliency`` in [0, 1] (1 at the most salient point) and the terms behind it.
 
     Raises
     ------
     PointCloudError
-        Empty cloud, NaN/Inf, fewer than 10 points, all points coincident or
-        collinear, normals of the wrong shape or zero length.
+        Empty, NaN/Inf, fewer than 10, coincident or collinear points; bad normals.
     InvalidParameterError
-        A parameter out of range (names the parameter).
+        A parameter out of range or of the wrong type.
 
     Notes
     -----
-    Descriptor (§5.3.2.1): F = (n, K r², d).  K is the Gaussian curvature of a
-    least-squares quadric in the PCA frame of N_g(p_i) (all neighbourhoods solve
-    their 6×6 normal equations as one stacked ``np.linalg.solve``).  K is made
-    dimensionless by r² so that the filter is scale invariant (the thesis uses
-    raw K, whose size depends on the model's units).  The thesis defines d_i
-    (5.4) from the neighbourhood mean F̄_i while making d a component of F; we
-    resolve the circularity as: F̄⁴_i = mean of (n, K r²) over N_g (5.2), F̄_g =
-    mean of F̄⁴ over the cloud (5.3), d_i = ‖F̄⁴_i − F̄_g‖ (5.4), and the fifth
-    component of F̄_i is the mean of d over N_g.
-
-    Normals: when given they are used as they are; otherwise PCA normals of
-    N_g oriented by MST propagation (Hoppe 1992) over the 16 nearest
-    neighbours, each connected component rooted at its highest point with its
-    normal toward +z, which is outward on closed surfaces (the convention of
-    ``pcprep.filters.neighbors.orient_normals_mst``).  The thesis does not say how
-    its normals are oriented; Hoppe's rule (flip when n_i·n_j < 0) flips whole
-    faces of the "star" solid, whose tips are sharper than 90° (12 % of its
-    normals at 0.3 h noise, 45 % clean with another seed), and a flipped
-    face cancels the normal part of the descriptor along its edges.  So the
-    propagation here also admits the neighbour's normal mirrored in the
-    plane bisecting the chord p_i p_j (``pcprep.filters.neighbors.normal_agreement``, after the
-    osculating-circle consistency of König & Gumhold 2009) when that agrees
-    more strongly than the plain product.  On the star (4 seeds × 6000,
-    10000, 20000 points × clean, 0.3 h, 30 % random) the runs with a face
-    flipped (>10 % of the normals) drop from 26 of 36 to 7 of 36; the other
-    benchmark shapes stay below 0.3 % flipped; the star's AUC at 0.3 h (20000
-    points) rises from 0.88 to 0.94.  It is not a cure: a face can still
-    flip where PCA normals near a thin tip are unreliable.  Flipping every normal of the cloud leaves the saliency
-    unchanged (all inner products and norms of the coding are invariant to
-    it); a wrongly oriented patch does not: it shows up as salient along its
-    border.
-
-    Surroundings (§5.3.2.2): the ray ends are r·(cos θ_k, sin θ_k) in the PCA
-    tangent plane; the atom is the neighbour of N_g(p_i) whose projection is
-    nearest, as in the thesis (not the nearest point of the whole cloud).
-
-    Coding (5.6): the thesis writes ‖x − Dα‖₂² + λ‖α‖₁ (no ½); we solve
-    ½‖x − Dα‖² + (λ/2)‖α‖₁, the same minimiser.  The thesis' LARS is replaced
-    by batched coordinate descent with an exact active-set step, which reaches
-    the same Lasso solution (tests compare with scikit-learn's LassoLars).
-
-    Saliency (5.7): S_M = ‖α‖₀ (|α_j| > 1e-10), S_I = residual "ℓ1" norm; the
-    normal block enters S_I with its Euclidean length instead of |r_x|+|r_y|+|r_z|
-    so that S_I, like the rest of the method, is invariant to rotations of the
-    cloud (the plain ℓ1 of the normal components is not).  N(·) divides by the
-    maximum (not min-max), so that a uniform measure stays uniform (a plane is
-    not given artificial contrast).  ``measure="mdl"`` is the thesis' S_T =
-    N(S_M)·N(S_I) (operator ∘ = product, its best).  The default
-    ``measure="residual"`` keeps N(S_I) alone, a deviation measured in
-    reports/saliency.md: the neighbourhood descriptors of a smooth region are
-    near-duplicates of their surroundings, so the Lasso spreads its weight over
-    several almost identical atoms there (the centre lies between them), while
-    at a feature the centre is an extreme that one or two atoms approximate.
-    ‖α‖₀ is therefore higher on flat regions than on edges and bumps (its AUC
-    against the ground truth is below 0.5 on the synthetic shapes) and it
-    depends on how far the solver converged on these ill-conditioned problems;
-    the residual is stable and ranks features well.
-    Accumulation: the neighbourhoods that contain point i are, with symmetric
-    radius neighbourhoods, those centred in its own N_g(p_i) (exact unless the
-    ``k_max`` cap bites).  The thesis accumulates S_T over them; the mean does
-    that literally (``accumulation="mean"``).  The default takes their 10 %
-    quantile instead (a robust minimum: point i is salient when nearly every
-    neighbourhood containing it is), a deviation measured in
-    reports/saliency.md.  Reason: S_T of a neighbourhood is high as soon as a
-    feature lies within about r of its centre (an atom across a sharp edge
-    makes the dictionary diverse, so the Lasso residual rises), i.e. on a
-    plateau ~2r wide, and the mean widens that plateau by another r; the low
-    quantile narrows it by r instead (a morphological erosion of the plateau),
-    so the score peaks on the feature itself.  On the benchmark this raises
-    the mean CAD-edge AUC by about 0.02 and keeps the bumps under noise;
-    ``acc_quantile`` between 0.05 and 0.2 gave the same AUCs within 0.004.
-    The price: corners no longer stand above edges (the mean keeps them
-    ~5 % higher), and the score correlates less with the smooth per-face maps
-    of unknown origin shown as a side signal in the report (mean r 0.35
-    against 0.44 with the mean accumulation).
-
-    Localisation attempts (none adopted).  On a straight sharp edge the rays
-    along the edge end on copies of the centre, so the residual is mostly the
-    ℓ1 shrinkage of a shorter F̄ (the mean normal shortens where N_g straddles
-    the edge): on the clean cube the rank correlation of S_T with 1/‖F̄‖ is
-    0.91, and 1/‖F̄‖ accumulated alone gives AUC 0.86 (the coding adds the
-    rest).  S_T therefore measures normal spread at scale r, and every
-    variant below stays ~0.02 under the point-wise curvature baseline
-    (0.992/0.986/0.990).  Mean CAD AUC clean/0.3 h/30 % random (five solids,
-    20000 points, seed 0; bumps = the bumpy plane's three AUCs) against the
-    default 0.964/0.961/0.963 (bumps 0.993/0.989/0.991):
-    Gaussian distance weights in the mean (5.2), σ = 0.25 r 0.967/0.942/0.958,
-    0.35 r 0.969/0.959/0.964, 0.5 r 0.970/0.962/0.967 (bumps
-    0.993/0.988/0.989), 0.7 r 0.970/0.964/0.967, 1.0 r 0.970/0.961/0.964 — but
-    σ = 0.5 r over six (size, seed) runs gains +0.002 on average, from −0.003
-    (8000 points, seed 1: 30 % random −0.013) to +0.006, and drops the noisy
-    6000-point cube of the tests from 0.957 to 0.939, so it is within the
-    run-to-run spread; radius 2 h 0.964/0.904/0.938 (bumps under noise 0.871),
-    2.5 h 0.964/0.966/0.969 (bumps 0.989/0.973/0.980), 4 h (k_max 56)
-    0.959/0.949/0.957; multi-scale, product of the S_T at 2 h and 3 h
-    accumulated over the 3 h (2 h) neighbourhoods 0.967/0.945/0.957
-    (0.966/0.951/0.958), bumps 0.95-0.96 under noise (the 2 h scale is
-    noisy); quantile accumulation over a smaller ball than N_g, 2 h
-    0.955/0.951/0.953, 2.5 h 0.962/0.959/0.961; λ = 0.3 0.950/0.938/0.947,
-    λ = 0.6 0.965/0.957/0.963; the curvature magnitude √(k1²+k2²)·r as a sixth
-    component of F (the thesis allows "curvatures") inverts the CAD ranking
-    (AUC 0.28-0.31): it lengthens F̄ at the edges and so lowers the shrinkage
-    residual there.  A per-point radius after Mitra & Nguyen's rule r ∝ κ^(−1/3)
-    (κ = √(k1²+k2²) of the 3 h fit, r_i = 3 h·(κ·3h)^(−1/3) clipped to
-    [2 h, 3 h], hood, K scaling, rays and accumulation at r_i): 0.969/0.967/0.968
-    (bumps unchanged), and a gain of +0.002 to +0.005 in each of four (size,
-    seed) runs; with the constant 1 replaced by 0.3, 0.957/0.947/0.954.  Not
-    adopted: the gain is a quarter of the gap to the baseline, and it rests on a
-    constant chosen on this benchmark (two values tried).
-
-    Radius: a fixed multiple of h instead of the adaptive radius of Mitra &
-    Nguyen (2003) used in the thesis; h already adapts to the sampling density
-    of the cloud as a whole.
-
-    Cost: one k-NN query (k = ``k_max``) gives h and every neighbourhood; the
-    Lasso problems are solved in stacks of 65536.  The Lasso is stopped after
-    ``LASSO_ITER`` = 32 coordinate-descent sweeps; problems not yet certified
-    by the exact active-set step (about a quarter: their atoms are
-    near-duplicates, so the minimiser is ill-conditioned) keep the iterate.  On
-    fandisk this moves the saliency by at most ~0.01 against 3000 sweeps; the
-    objective and hence the residual are insensitive to it, ‖α‖₀ less so.
-    Thesis timing for reference: 15.5K points in 81.7 s (MATLAB); see
-    reports/speed_saliency.md for ours.
-
-    References
-    ----------
-    E. A. Leal Narváez, *Sparse Representation-Based Algorithms for
-    Pre-Processing Point Clouds*, 2020, ch. 5.
+    Deviations (docs/decisions/saliency.md, by heading): K is scaled by r², so the
+    result does not depend on the model's units ("Descriptor"); the residual counts
+    the normal block by its Euclidean length, for rotation invariance ("Residual
+    norm"); the default measure drops ‖α‖₀, which is higher on flat regions than on
+    features ("Measure"); the default 10 % quantile keeps the score on the feature
+    where the mean spreads it about r wider ("Accumulation"); r is a fixed multiple
+    of h, not Mitra & Nguyen's adaptive radius ("Radius"); the Lasso is solved by
+    batched coordinate descent, stopped after 32 sweeps ("Lasso solver").  The
+    thesis' form: ``measure="mdl", accumulation="mean"``.  Deterministic.
 
     Examples
     --------
@@ -447,8 +319,6 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     True
     """
     func = "saliency_sparse_mdl"
-    p = dict(radius=radius, n_rays=n_rays, alpha=alpha, measure=measure,
-             accumulation=accumulation, acc_quantile=acc_quantile, k_max=k_max)
     pts = as_points(points, func=func, min_points=MIN_POINTS)
     n = len(pts)
     nrm = None if normals is None else as_normals(normals, n, func=func)
@@ -456,11 +326,11 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     pts, _ = centered(pts)
 
     tree = build_tree(pts)
-    hood, h = neighbourhoods(pts, p["radius"], p["k_max"], tree)
+    hood, h = neighbourhoods(pts, radius, k_max, tree)
     del tree
-    r = p["radius"] * h
+    r = radius * h
     if np.median(hood.count) < 6:
-        raise PointCloudError(f"{func}: neighbourhoods of radius {p['radius']} h hold "
+        raise PointCloudError(f"{func}: neighbourhoods of radius {radius} h hold "
                               "fewer than 6 points (median); increase radius")
     log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, r,
              int(np.median(hood.count)))
@@ -468,40 +338,51 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
     # surroundings (§5.3.2.2) first, so that the frames are freed before the
     # memory-hungry MST orientation
-    atoms = _ray_atoms(pts, hood, frames, r, p["n_rays"])
+    atoms = _ray_atoms(pts, hood, frames, r, n_rays)
     pca_normal = np.ascontiguousarray(frames[:, :, 2])
     del frames
     if nrm is None:
         nrm = orient_normals_hood(pts, pca_normal, hood)
     del pca_normal
 
-    # descriptors (5.2)-(5.4)
-    F4 = np.column_stack([nrm, gauss * r * r])
+    Fbar = _descriptors(nrm, gauss * r * r, hood)
+    sparsity, resid, n_bad = _code(Fbar, atoms, alpha)
+
+    # MDL saliency (5.7) and accumulation over overlapping neighbourhoods
+    s_t = _normalise(resid)
+    if measure == "mdl":
+        s_t = _normalise(sparsity.astype(np.float64)) * s_t
+    if accumulation == "quantile":
+        sal = _normalise(hood.quantile(s_t, acc_quantile))
+    else:
+        sal = _normalise(hood.mean(s_t))
+    log.info("%s: %d of %d Lasso problems stopped at %d sweeps (near-duplicate atoms)",
+             func, n_bad, n, LASSO_ITER)
+    return SaliencyResult(sal, s_t, sparsity, resid, Fbar, nrm, gauss, atoms, h, r, n_bad)
+
+
+def _descriptors(normals: np.ndarray, k_r2: np.ndarray, hood: _Hood) -> np.ndarray:
+    """F̄_i = (n̄, K̄ r², d̄) (5.2)-(5.4): d_i = ‖F̄⁴_i − F̄_g‖ is computed from the
+    means of the first four components, then averaged over N_g like them."""
+    F4 = np.column_stack([normals, k_r2])
     Fbar4 = hood.mean(F4)
     d = np.linalg.norm(Fbar4 - Fbar4.mean(axis=0), axis=1)
-    Fbar = np.column_stack([Fbar4, hood.mean(d)])
+    return np.column_stack([Fbar4, hood.mean(d)])
 
-    # coding (5.6)
+
+def _code(Fbar: np.ndarray, atoms: np.ndarray, alpha: float):
+    """Lasso codes (5.6) of every F̄_i against the F̄ of its atoms: ‖α‖₀, the
+    residual norm and the number of problems not certified optimal."""
+    n = len(Fbar)
     sparsity = np.zeros(n, dtype=np.int64)
     resid = np.zeros(n)
     n_bad = 0
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         D = Fbar[atoms[s:e]].transpose(0, 2, 1)  # (c, 5, m)
-        sol = lasso_batched(Fbar[s:e], D, 0.5 * p["alpha"], max_iter=LASSO_ITER,
+        sol = lasso_batched(Fbar[s:e], D, 0.5 * alpha, max_iter=LASSO_ITER,
                             tol=LASSO_TOL)
         sparsity[s:e] = (np.abs(sol.coef) > 1e-10).sum(axis=1)
         resid[s:e] = _residual_norm(sol.residual)
         n_bad += int((~sol.converged).sum())
-
-    # MDL saliency (5.7) and accumulation over overlapping neighbourhoods
-    s_t = _normalise(resid)
-    if p["measure"] == "mdl":
-        s_t = _normalise(sparsity.astype(np.float64)) * s_t
-    if p["accumulation"] == "quantile":
-        sal = _normalise(hood.quantile(s_t, p["acc_quantile"]))
-    else:
-        sal = _normalise(hood.mean(s_t))
-    log.info("%s: %d of %d Lasso problems stopped at %d sweeps (near-duplicate atoms)",
-             func, n_bad, n, LASSO_ITER)
-    return SaliencyResult(sal, s_t, sparsity, resid, Fbar, nrm, gauss, atoms, h, r, n_bad)
+    return sparsity, resid, n_bad

@@ -1,16 +1,13 @@
 """Tests of filters/saliency.py (thesis ch.5) and its registry declaration."""
 
-import inspect
-
 import numpy as np
 import pytest
 
+from pcprep import InvalidParameterError, PointCloudError, saliency_sparse_mdl
 from pcprep.baselines.datasets import add_noise, make_shape
-from pcprep import InvalidParameterError, PointCloudError
 from pcprep.filters.metrics import roc_auc
 from pcprep.filters.neighbors import average_spacing, build_tree
-from pcprep.filters.saliency import (PARAMS, local_frames_and_curvature, neighbourhoods,
-                              saliency_sparse_mdl)
+from pcprep.filters.saliency import local_frames_and_curvature, neighbourhoods
 
 N = 4000
 
@@ -161,6 +158,14 @@ def test_bad_parameters_raise(bumpy, kwargs, name):
     s, _ = bumpy
     with pytest.raises(InvalidParameterError, match=f"saliency_sparse_mdl.*{name}"):
         saliency_sparse_mdl(s.points[:100], **kwargs)
+
+
+def test_takes_no_seed(bumpy):
+    """The filter draws no random numbers, so it takes no seed (project policy)."""
+    s, _ = bumpy
+    assert "seed" not in {p.name for p in saliency_sparse_mdl.params}
+    with pytest.raises(InvalidParameterError, match="seed"):
+        saliency_sparse_mdl(s.points[:100], seed=0)
 
 
 def test_bad_normals_raise(bumpy):
