@@ -76,23 +76,30 @@ def run_on_cloud(spec, cloud: Cloud, params: dict):
 
 def result_cloud(spec, cloud: Cloud, result) -> Cloud:
     """The cloud a filter's result turns the input into (used by the CLI and
-    by ``apply_filter``)."""
+    by ``apply_filter``).  Every input attribute is kept (``new_layer``: on the
+    kept rows).  The main per-point result goes to the attribute
+    ``spec.attribute``; following MeshLab, a mask also becomes the quality
+    (1/0) and a scalar the quality, the previous quality being kept as the
+    attribute ``quality_before``."""
     if spec.kind == "coord":
         pts = np.asarray(getattr(result, spec.points_field), dtype=np.float64)
         nrm = getattr(result, spec.normals_field) if spec.normals_field else cloud.normals
         out = cloud.with_(points=pts, normals=None if nrm is None else np.asarray(nrm, np.float64))
         if spec.mask_field:
-            out = _with_mask_quality(out, getattr(result, spec.mask_field))
+            mask = np.asarray(getattr(result, spec.mask_field), dtype=bool)
+            out = _with_attribute(_with_mask_quality(out, mask), spec.attribute, mask)
         return out
     if spec.kind == "scalar":
         values = np.asarray(getattr(result, spec.scalar_field), dtype=np.float64)
-        return _keep_quality(cloud).with_(quality=values)
+        out = _keep_quality(cloud).with_(quality=values)
+        return _with_attribute(out, spec.attribute, values)
     if spec.kind == "selection":
-        out = _with_mask_quality(cloud, getattr(result, spec.mask_field))
+        mask = np.asarray(getattr(result, spec.mask_field), dtype=bool)
+        out = _with_attribute(_with_mask_quality(cloud, mask), spec.attribute, mask)
         if spec.scalar_field:
-            attrs = dict(out.attributes)
-            attrs[spec.scalar_field] = np.asarray(getattr(result, spec.scalar_field), np.float64)
-            out = out.with_(attributes=attrs)
+            score = np.asarray(getattr(result, spec.scalar_field), np.float64)
+            name = f"{spec.attribute}_{spec.scalar_field}" if spec.attribute else spec.scalar_field
+            out = _with_attribute(out, name, score)
         return out
     if spec.kind == "new_layer":
         idx = np.asarray(getattr(result, spec.index_field), dtype=np.int64)
@@ -103,12 +110,24 @@ def result_cloud(spec, cloud: Cloud, result) -> Cloud:
     raise PointCloudError(f"{spec.name}: kind {spec.kind!r} produces no cloud")
 
 
+def _with_attribute(cloud: Cloud, name: str | None, values: np.ndarray) -> Cloud:
+    """Add ``values`` as attribute ``name``, or ``name_2``, ``name_3``, … when the
+    cloud already has one of that name (nothing is overwritten)."""
+    if name is None:
+        return cloud
+    attrs = dict(cloud.attributes)
+    key, k = name, 1
+    while key in attrs:
+        k += 1
+        key = f"{name}_{k}"
+    attrs[key] = values
+    return cloud.with_(attributes=attrs)
+
+
 def _keep_quality(cloud: Cloud) -> Cloud:
     if cloud.quality is None:
         return cloud
-    attrs = dict(cloud.attributes)
-    attrs.setdefault("quality_before", cloud.quality)
-    return cloud.with_(attributes=attrs)
+    return _with_attribute(cloud, "quality_before", cloud.quality)
 
 
 def _with_mask_quality(cloud: Cloud, mask) -> Cloud:

@@ -46,8 +46,10 @@ def _bool(text: str) -> bool:
 def _add_filter_command(sub, spec) -> None:
     first = spec.description.split(". ")[0].rstrip(".") + "."
     p = sub.add_parser(spec.command, help=spec.label, description=f"{spec.label}. {first}")
-    p.add_argument("input", help="input file (any format pymeshlab reads: PLY, OBJ, OFF, XYZ, …)")
-    p.add_argument("output", help="output file (PLY keeps normals, colours and quality)")
+    p.add_argument("input", help="input file: PLY, LAS, LAZ, PCD, E57, XYZ, OBJ, OFF (or "
+                                 "another format pymeshlab reads)")
+    p.add_argument("output", help="output file: PLY, LAS, LAZ or PCD keep every attribute; "
+                                  "XYZ, OBJ, OFF and E57 only some")
     for prm in spec.params:
         kind = _bool if prm.kind is bool else prm.kind
         unit = f" [{registry.UNITS[prm.unit]}]" if prm.unit else ""
@@ -58,6 +60,9 @@ def _add_filter_command(sub, spec) -> None:
             choices=prm.choices or None, metavar=prm.name.upper() if not prm.choices else None,
             help=(f"{prm.help.rstrip('.')}{unit}.{rng} Default: {default}.").replace("%", "%%"),
         )
+    p.add_argument("--drop-nonfinite", action="store_true",
+                   help="drop rows whose coordinates hold NaN or Inf (their indices are "
+                        "reported) instead of refusing the file")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(_spec=spec)
 
@@ -82,33 +87,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_info(path: str) -> None:
-    from pcprep.filters.neighbors import average_spacing
+    from pcprep.filters.neighbors import knn
 
-    cloud = load_cloud(path)
+    from .cloud import describe
+
+    cloud = load_cloud(path, nonfinite="drop")
     pts = cloud.points
+    dropped = cloud.meta.get("dropped_rows", ())
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    attrs = ["positions"]
-    if cloud.normals is not None:
-        attrs.append("normals")
-    if cloud.colors is not None:
-        attrs.append("colours")
-    if cloud.quality is not None:
-        attrs.append("quality")
+    lines = [f"file: {path}", f"format: {cloud.meta.get('format', '?')}",
+             f"points: {len(pts) + len(dropped)}"]
+    if len(dropped):
+        shown = ", ".join(map(str, dropped[:5])) + (", …" if len(dropped) > 5 else "")
+        lines.append(f"non-finite points: {len(dropped)} (rows {shown})")
+    else:
+        lines.append("non-finite points: 0")
     if cloud.faces is not None:
-        attrs.append(f"faces ({len(cloud.faces)})")
-    finite = np.isfinite(pts).all(axis=1)
-    lines = [f"file: {path}", f"points: {len(pts)}"]
-    if not finite.all():
-        lines.append(f"non-finite points: {int((~finite).sum())}")
-    try:
-        h = average_spacing(pts[finite])
-        lines.append(f"average spacing h: {h:.6g}")
-    except PointCloudError as exc:
-        lines.append(f"average spacing h: n/a ({exc})")
-    lines.append(f"bounding box min: {' '.join(f'{v:.6g}' for v in lo)}")
-    lines.append(f"bounding box max: {' '.join(f'{v:.6g}' for v in hi)}")
+        lines.append(f"faces: {len(cloud.faces)}")
+    if len(pts) > 7:
+        dist, _ = knn(pts, 7)
+        nn = dist[:, 1]
+        spacing = float(np.median(dist[:, 1:].mean(axis=1)))
+        iso = int(np.count_nonzero(nn > 10.0 * max(float(np.median(nn)), 1e-300)))
+        lines.append(f"spacing h (median distance to the 6 nearest): {spacing:.6g}")
+        lines.append(f"isolated points (nearest neighbour > 10x the median): {iso}")
+    lines.append(f"bounding box min: {' '.join(f'{v:.17g}' for v in lo)}")
+    lines.append(f"bounding box max: {' '.join(f'{v:.17g}' for v in hi)}")
     lines.append(f"diagonal: {float(np.linalg.norm(hi - lo)):.6g}")
-    lines.append(f"attributes: {', '.join(attrs)}")
+    if "crs" in cloud.meta:
+        lines.append(f"CRS: {cloud.meta['crs']}")
+    header = cloud.meta.get("las_header")
+    if header is not None:
+        lines.append(f"LAS {header.version}, point format {header.point_format.id}, "
+                     f"scale {list(header.scales)}, offset {list(header.offsets)}, "
+                     f"{len(header.vlrs)} VLR(s)")
+    lines.append("attributes:")
+    for name, dtype, rng in describe(cloud):
+        lines.append(f"  {name:<24} {dtype:<10} {rng}")
     sys.stdout.write("\n".join(lines) + "\n")
 
 
@@ -124,24 +139,31 @@ def _cmd_filters() -> None:
     sys.stdout.write("\n".join(out))
 
 
+#: what each kind of filter needs the output format to store
+_NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
+          "selection": ("quality", "attributes"), "new_layer": ()}
+
+
 def _cmd_filter(args) -> None:
+    from . import formats
     from .apply import result_cloud, run_on_cloud
 
     spec = args._spec
     params = {p.name: getattr(args, p.name) for p in spec.params
               if getattr(args, p.name) is not None}
     spec.resolve(params)  # parameter errors before reading the file
-    cloud = load_cloud(args.input)
+    needs = _NEEDS[spec.kind]
+    formats.check_destination(args.output, needs=needs)  # before any work
+    cloud = load_cloud(args.input, nonfinite="drop" if args.drop_nonfinite else "error")
+    dropped = cloud.meta.get("dropped_rows", ())
+    if len(dropped):
+        log.warning("%s: dropped %d row(s) with non-finite coordinates: %s", args.input,
+                    len(dropped), ", ".join(map(str, dropped)))
+    formats.check_cloud(cloud, args.output, needs=needs)
     log.info("%s: %d points from %s", spec.command, len(cloud), args.input)
     result = run_on_cloud(spec, cloud, params)
     out = result_cloud(spec, cloud, result)
-    if spec.kind in ("selection", "scalar"):
-        require = ("quality",)
-    elif spec.kind == "coord":
-        require = ("normal",)
-    else:
-        require = ()
-    save_cloud(out, args.output, require=require, ramp=spec.kind == "scalar")
+    save_cloud(out, args.output, require=needs, ramp=spec.kind == "scalar")
     log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
 
 

@@ -3,69 +3,28 @@ convert.py
 ----------
 Lossless conversion between pymeshlab meshes and NumPy arrays.
 
-A ``Cloud`` holds everything pcprep reads from or writes to a MeshLab layer:
-positions, normals, colours, quality, faces and named custom per-vertex
-scalars.  pymeshlab stores doubles, so float64 arrays round-trip bit-exactly.
+A ``Cloud`` (``cloud.py``) holds everything pcprep reads from a file or a
+MeshLab layer; files are read and written by ``formats``.  pymeshlab stores
+doubles, so float64 arrays round-trip bit-exactly; a layer holds custom
+attributes only as float64 scalars, so other dtypes are converted (integers up
+to 2**53 exactly).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from pcprep.filters._validation import PointCloudError
 
+from . import formats
+from .cloud import Cloud
+from .formats import file_mode  # noqa: F401  (re-exported for the harness)
+
 
 class MissingAttributeError(ValueError):
     """A filter needs a per-vertex attribute (e.g. normals) the layer lacks."""
-
-
-@dataclass(frozen=True)
-class Cloud:
-    """Arrays of one MeshLab layer.
-
-    Attributes
-    ----------
-    points : (n, 3) float64
-    normals : (n, 3) float64 or None
-        None when the layer has no usable normals (pymeshlab reports zero
-        vectors for clouds loaded without normals).
-    colors : (n, 4) float64 in [0, 1] or None
-    quality : (n,) float64 or None
-    faces : (f, 3) int or None
-    attributes : dict of str -> (n,) float64
-        Custom per-vertex scalar attributes carried through.
-    label : str
-    """
-
-    points: np.ndarray
-    normals: np.ndarray | None = None
-    colors: np.ndarray | None = None
-    quality: np.ndarray | None = None
-    faces: np.ndarray | None = None
-    attributes: dict = field(default_factory=dict)
-    label: str = ""
-
-    def __len__(self) -> int:
-        return len(self.points)
-
-    def subset(self, idx: np.ndarray) -> "Cloud":
-        """The cloud restricted to vertices ``idx`` (faces dropped)."""
-        take = (lambda a: None if a is None else a[idx])
-        return Cloud(
-            points=self.points[idx],
-            normals=take(self.normals),
-            colors=take(self.colors),
-            quality=take(self.quality),
-            faces=None,
-            attributes={k: v[idx] for k, v in self.attributes.items()},
-            label=self.label,
-        )
-
-    def with_(self, **changes) -> "Cloud":
-        return replace(self, **changes)
 
 
 def mesh_to_cloud(mesh, attributes: tuple[str, ...] = ()) -> Cloud:
@@ -109,8 +68,21 @@ def cloud_to_mesh(cloud: Cloud):
         kwargs["v_scalar_array"] = np.ascontiguousarray(cloud.quality, dtype=np.float64)
     mesh = pymeshlab.Mesh(**kwargs)
     for name, values in cloud.attributes.items():
-        mesh.add_vertex_custom_scalar_attribute(np.ascontiguousarray(values, dtype=np.float64), name)
+        values = np.asarray(values)
+        if values.ndim == 2 and values.shape[1] == 3:
+            mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
+        else:
+            for key, col in _scalar_columns(name, values):
+                mesh.add_vertex_custom_scalar_attribute(col, key)
     return mesh
+
+
+def _scalar_columns(name: str, values: np.ndarray):
+    """A per-point attribute as float64 scalar columns (``name``, or ``name_k``)."""
+    if values.ndim == 1:
+        return [(name, np.ascontiguousarray(values, dtype=np.float64))]
+    return [(f"{name}_{k}", np.ascontiguousarray(values[:, k], dtype=np.float64))
+            for k in range(values.shape[1])]
 
 
 def meshset_to_cloud(ms, attributes: tuple[str, ...] = ()) -> Cloud:
@@ -120,170 +92,32 @@ def meshset_to_cloud(ms, attributes: tuple[str, ...] = ()) -> Cloud:
     return mesh_to_cloud(ms.current_mesh(), attributes)
 
 
-def load_cloud(path: str) -> Cloud:
-    """Read any format pymeshlab reads (PLY, OBJ, OFF, XYZ, PTS, E57, …).
-
-    Raises ``PointCloudError`` naming the file when it cannot be read or holds
-    no vertices.
-    """
-    import os
-
-    import pymeshlab
-
-    if not os.path.isfile(path):
-        raise PointCloudError(f"cannot read {path!r}: no such file")
-    if os.path.splitext(path)[1].lower() == ".xyz":
-        return _load_xyz(path)
-    ms = pymeshlab.MeshSet()
-    try:
-        ms.load_new_mesh(str(path))
-    except Exception as exc:
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise PointCloudError(f"cannot read {path!r}: {msg}") from exc
-    cloud = meshset_to_cloud(ms)
-    if len(cloud) == 0:
-        raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
-    return cloud
+def load_cloud(path, *, nonfinite: str = "error") -> Cloud:
+    """Read a file with every per-vertex attribute (see ``formats.read_cloud``)."""
+    return formats.read_cloud(path, nonfinite=nonfinite)
 
 
-def save_cloud(cloud: Cloud, path: str, *, require: tuple[str, ...] = (),
+def save_cloud(cloud: Cloud, path, *, require: tuple[str, ...] = (),
                ramp: bool = False) -> None:
-    """Write ``cloud`` atomically: a temporary file in the same folder is
-    renamed over ``path`` only once fully written, so a failure never leaves a
-    partial output.  Normals, colours and quality are saved where the format
-    supports them; names in ``require`` (``"normal"``, ``"color"``,
-    ``"quality"``) must be stored, or ``PointCloudError`` says the format
-    cannot hold them and nothing is written.  ``ramp`` colours the vertices
-    from their quality in [0, 1] with MeshLab's quality ramp.
-    """
-    import os
-    import tempfile
+    """Write ``cloud`` atomically with every attribute (see ``formats.write_cloud``).
 
+    ``require`` names what the format must store (``"normal"``, ``"color"``,
+    ``"quality"``, ``"attributes"``), or ``PointCloudError`` says it cannot and
+    nothing is written.  ``ramp`` colours the vertices from their quality in
+    [0, 1] with MeshLab's red-green-blue quality ramp.
+    """
+    if ramp and cloud.quality is not None:
+        cloud = cloud.with_(colors=quality_ramp(cloud.quality))
+    formats.write_cloud(cloud, path, needs=tuple(require))
+
+
+def quality_ramp(quality: np.ndarray) -> np.ndarray:
+    """MeshLab's quality colour ramp over [0, 1] (RGBA in [0, 1])."""
     import pymeshlab
 
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise PointCloudError(f"cannot write {path!r}: folder {folder!r} does not exist")
-    ext = os.path.splitext(path)[1]
-    if ext.lower() == ".xyz":
-        _save_xyz(cloud, path, folder, require)
-        return
-    if not ext:
-        raise PointCloudError(f"cannot write {path!r}: the file name needs an extension (.ply, .obj, …)")
-    if ext.lower() == ".e57":
-        _check_float32(cloud, path)
+    pts = np.zeros((len(quality), 3))
+    pts[:, 0] = np.arange(len(quality))
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(cloud_to_mesh(cloud), cloud.label or "cloud")
-    if ramp and cloud.quality is not None:
-        ms.compute_color_from_scalar_per_vertex(minval=0.0, maxval=1.0)
-        cloud = cloud.with_(colors=np.zeros((len(cloud), 4)))  # colours are now saved
-    fd, tmp = tempfile.mkstemp(prefix=".pcprep-", suffix=ext, dir=folder)
-    os.close(fd)
-    try:
-        dropped = _save_current(ms, tmp, cloud)
-        missing = [r for r in require if f"save_vertex_{r}" in dropped]
-        if missing:
-            raise PointCloudError(
-                f"cannot write {path!r}: the {ext} format cannot store per-vertex "
-                f"{' and '.join(missing)}; use .ply"
-            )
-        os.chmod(tmp, file_mode())  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except Exception as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        if isinstance(exc, PointCloudError):
-            raise
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise PointCloudError(f"cannot write {path!r}: {msg}") from exc
-
-
-def file_mode() -> int:
-    """Permissions of a newly created file under the current umask (0644 usually)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-def _check_float32(cloud: Cloud, path: str) -> None:
-    """pymeshlab writes E57 coordinates as float32: refuse when that would move
-    points by more than 1e-6 of the cloud's extent (e.g. UTM offsets)."""
-    pts = cloud.points
-    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
-    extent = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
-    if err > 1e-6 * max(extent, 1e-300):
-        raise PointCloudError(
-            f"cannot write {path!r}: the E57 writer stores float32 coordinates, which would "
-            f"move points by up to {err:.3g} (cloud extent {extent:.3g}); use .ply"
-        )
-
-
-def _save_current(ms, path: str, cloud: Cloud) -> set:
-    """Save the current layer with every attribute the format accepts and
-    return the set of options the format refused."""
-    wanted = {
-        "save_vertex_normal": cloud.normals is not None,
-        "save_vertex_color": cloud.colors is not None,
-        "save_vertex_quality": cloud.quality is not None,
-    }
-    refused: set = set()
-    while True:
-        try:
-            ms.save_current_mesh(path, **{k: v for k, v in wanted.items() if k not in refused})
-            return {k for k in refused if wanted[k]}
-        except Exception as exc:
-            text = str(exc)
-            bad = [k for k in wanted if k not in refused and k in text]
-            if not bad:
-                raise
-            refused.update(bad)
-
-
-# pymeshlab's XYZ reader silently skips rows it cannot parse (a NaN row vanishes,
-# shifting every later index) and its writer keeps only 6 decimals, so pcprep
-# reads and writes this one text format itself: full precision, every row kept.
-
-def _load_xyz(path: str) -> Cloud:
-    import warnings
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            data = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
-    except (ValueError, OSError) as exc:
-        raise PointCloudError(f"cannot read {path!r}: {str(exc).splitlines()[0]}") from exc
-    if data.size == 0:
-        raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
-    if data.shape[1] not in (3, 6):
-        raise PointCloudError(
-            f"cannot read {path!r}: expected 3 (x y z) or 6 (x y z nx ny nz) columns, "
-            f"got {data.shape[1]}"
-        )
-    normals = data[:, 3:6].copy() if data.shape[1] == 6 else None
-    if normals is not None and (np.linalg.norm(normals, axis=1) < 1e-12).any():
-        normals = None
-    return Cloud(np.ascontiguousarray(data[:, :3]), normals, label=os.path.basename(path))
-
-
-def _save_xyz(cloud: Cloud, path: str, folder: str, require: tuple[str, ...]) -> None:
-    import os
-    import tempfile
-
-    missing = [r for r in require if r in ("quality", "color")]
-    if missing:
-        raise PointCloudError(
-            f"cannot write {path!r}: the .xyz format cannot store per-vertex "
-            f"{' and '.join(missing)}; use .ply"
-        )
-    cols = cloud.points if cloud.normals is None else np.c_[cloud.points, cloud.normals]
-    fd, tmp = tempfile.mkstemp(prefix=".pcprep-", suffix=".xyz", dir=folder)
-    os.close(fd)
-    try:
-        np.savetxt(tmp, cols, fmt="%.17g")
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except OSError as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise PointCloudError(f"cannot write {path!r}: {exc}") from exc
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=pts, v_scalar_array=np.asarray(quality, np.float64)))
+    ms.compute_color_from_scalar_per_vertex(minval=0.0, maxval=1.0)
+    return np.array(ms.current_mesh().vertex_color_matrix(), dtype=np.float64)

@@ -50,6 +50,11 @@ class FilterSpec:
         kept input indices → new layer).
     uses_normals : bool
         Pass the layer's normals (when present) to ``func``.
+    attribute : str or None
+        Name of the per-point attribute (PLY property, LAS extra dimension,
+        MeshSet custom attribute) that receives the filter's main per-point
+        result (``mask_field`` or ``scalar_field``), e.g. ``"sharp"``; a name
+        already present is never overwritten (``"sharp_2"`` is used instead).
     example : dict
         Parameters for a quick run on a few thousand points (the contract tests
         and the docs use them).
@@ -67,6 +72,7 @@ class FilterSpec:
     points_field: str = "points"
     normals_field: str | None = "normals"
     uses_normals: bool = False
+    attribute: str | None = None
     example: dict = field(default_factory=dict)
 
     @property

@@ -167,8 +167,10 @@ def test_xyz_round_trip_is_full_precision_and_rejects_nan_rows(tmp_path):
     assert np.array_equal(back.points, c.points) and np.array_equal(back.normals, c.normals)
     bad = tmp_path / "nan.xyz"
     bad.write_text("0 0 0\nnan 1 2\n1 1 1\n")
-    back = load_cloud(str(bad))  # read as is; the filters reject the NaN row by index
-    assert len(back) == 3 and np.isnan(back.points[1, 0])
+    with pytest.raises(PointCloudError, match=r"1 row\(s\) hold NaN or Inf.*rows 1\)"):
+        load_cloud(str(bad))
+    back = load_cloud(str(bad), nonfinite="drop")
+    assert len(back) == 2 and list(back.meta["dropped_rows"]) == [1]
 
 
 def test_e57_round_trip_and_float32_guard(tmp_path):

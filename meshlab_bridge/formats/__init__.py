@@ -1,0 +1,279 @@
+"""
+formats
+-------
+Point-cloud files in and out with nothing lost: every per-point attribute, the
+header (LAS point format, scale/offset, CRS and other VLRs; PLY comments and
+property types) and the row order survive a read and a write.
+
+``read_cloud(path)`` returns a ``Cloud``; ``write_cloud(cloud, path)`` writes it
+atomically (a temporary file in the destination folder renamed into place);
+``check_destination(path, ...)`` says before any work whether a destination can
+hold a result (folder writable, format able to store the attributes required,
+at full precision).  A non-finite coordinate is never dropped silently: reading
+refuses the file, naming the rows, unless ``nonfinite="drop"`` asks to drop
+them, and then the dropped row indices are kept in ``cloud.meta["dropped_rows"]``.
+
+Formats: PLY (plyfile: any vertex properties, faces, ASCII and binary), LAS and
+LAZ 1.2–1.4 (laspy with the lazrs backend), XYZ, OBJ and OFF (read and written
+here, at full precision), PCD as PCL writes it (ASCII and binary) and E57
+(pye57).  pymeshlab reads the other mesh formats it knows (STL, PTX, …); pcprep
+does not write those, because they cannot hold per-vertex results at full
+precision.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+from contextlib import contextmanager
+
+import numpy as np
+
+from pcprep.filters._validation import PointCloudError
+
+from ..cloud import Cloud
+
+#: extension -> module that reads and writes it
+_MODULES = {
+    ".ply": "ply", ".las": "las", ".laz": "las", ".xyz": "text", ".obj": "text",
+    ".off": "text", ".pcd": "pcd", ".e57": "e57",
+}
+#: formats read through pymeshlab only (never written: see the module docstring)
+_PYMESHLAB_ONLY = (".stl", ".ptx", ".pts", ".vmi", ".gltf", ".glb", ".3ds", ".wrl",
+                   ".dae", ".ctm", ".x3d", ".asc", ".apts", ".nvm", ".out", ".tri")
+#: what each writable format can store, besides positions
+CAN_STORE = {
+    ".ply": {"normal", "color", "quality", "attributes", "faces"},
+    ".las": {"normal", "color", "quality", "attributes"},
+    ".laz": {"normal", "color", "quality", "attributes"},
+    ".pcd": {"normal", "color", "quality", "attributes"},
+    ".e57": {"color"},
+    ".xyz": {"normal"},
+    ".obj": {"normal", "color", "faces"},
+    ".off": {"normal", "color", "faces"},
+}
+
+
+def _module(ext: str):
+    from importlib import import_module
+
+    return import_module(f"{__name__}.{_MODULES[ext]}")
+
+
+def _ext(path) -> str:
+    return os.path.splitext(os.fspath(path))[1].lower()
+
+
+def read_cloud(path, *, nonfinite: str = "error") -> Cloud:
+    """Read a point-cloud or mesh file with every per-vertex attribute.
+
+    Parameters
+    ----------
+    path : str or path-like
+    nonfinite : {"error", "drop"}, default="error"
+        Rows whose coordinates hold NaN or Inf raise ``PointCloudError`` naming
+        them; with ``"drop"`` they are removed and their indices (into the file)
+        stored in ``cloud.meta["dropped_rows"]``.
+
+    Raises
+    ------
+    PointCloudError
+        The file is missing, a folder, unreadable, truncated, holds more or
+        fewer rows than its header declares, no vertices, or non-finite
+        coordinates (with ``nonfinite="error"``).
+    """
+    path = os.fspath(path)
+    if nonfinite not in ("error", "drop"):
+        raise PointCloudError(f"read_cloud: nonfinite must be 'error' or 'drop', got {nonfinite!r}")
+    if os.path.isdir(path):
+        raise PointCloudError(f"cannot read {path!r}: it is a folder, not a file")
+    if not os.path.isfile(path):
+        raise PointCloudError(f"cannot read {path!r}: no such file")
+    if not os.access(path, os.R_OK):
+        raise PointCloudError(f"cannot read {path!r}: permission denied")
+    ext = _ext(path)
+    try:
+        if ext in _MODULES:
+            cloud = _module(ext).read(path)
+        elif ext in _PYMESHLAB_ONLY:
+            cloud = _read_pymeshlab(path)
+        else:
+            raise PointCloudError(
+                f"cannot read {path!r}: unknown format {ext or '(no extension)'}; pcprep reads "
+                f"{', '.join(sorted({*_MODULES, *_PYMESHLAB_ONLY}))}")
+    except PointCloudError:
+        raise
+    except (ValueError, OSError, KeyError, IndexError, EOFError) as exc:
+        raise PointCloudError(f"cannot read {path!r}: {_first_line(exc)}") from exc
+    if len(cloud) == 0:
+        raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
+    return _nonfinite(cloud, path, nonfinite)
+
+
+def _nonfinite(cloud: Cloud, path: str, policy: str) -> Cloud:
+    bad = ~np.isfinite(cloud.points).all(axis=1)
+    if not bad.any():
+        return cloud
+    rows = np.flatnonzero(bad)
+    shown = ", ".join(map(str, rows[:5])) + (", …" if len(rows) > 5 else "")
+    if policy == "error":
+        raise PointCloudError(
+            f"cannot read {path!r}: {len(rows)} row(s) hold NaN or Inf coordinates "
+            f"(rows {shown}); remove them, or read with nonfinite='drop' "
+            "(CLI: --drop-nonfinite) to drop them and report their indices")
+    keep = np.flatnonzero(~bad)
+    out = cloud.subset(keep, keep_faces=False)
+    return out.with_(meta={**out.meta, "dropped_rows": rows})
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def check_destination(path, *, needs: tuple[str, ...] = (), source=None) -> None:
+    """Refuse, before any work, a destination that cannot take the result.
+
+    ``needs`` names what the result must keep (``"normal"``, ``"color"``,
+    ``"quality"``, ``"attributes"``, ``"faces"``).  The folder must exist and be
+    writable, the format must be one pcprep writes and able to store ``needs``,
+    and ``path`` must not be a folder.  Writing over ``source`` is allowed (the
+    output replaces it atomically).
+    """
+    path = os.fspath(path)
+    ext = _ext(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise PointCloudError(f"cannot write {path!r}: it is a folder")
+    if not ext:
+        raise PointCloudError(f"cannot write {path!r}: the file name needs an extension "
+                              f"({', '.join(sorted(CAN_STORE))})")
+    if ext not in CAN_STORE:
+        raise PointCloudError(
+            f"cannot write {path!r}: pcprep does not write {ext} files (they cannot hold "
+            f"per-point results at full precision); use one of {', '.join(sorted(CAN_STORE))}")
+    missing = [n for n in needs if n not in CAN_STORE[ext]]
+    if missing:
+        raise PointCloudError(
+            f"cannot write {path!r}: the {ext} format cannot store per-vertex "
+            f"{' and '.join(missing)}; use .ply, .las/.laz or .pcd")
+    if not os.path.isdir(folder):
+        raise PointCloudError(f"cannot write {path!r}: folder {folder!r} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise PointCloudError(f"cannot write {path!r}: folder {folder!r} is not writable")
+    if ext == ".e57":
+        _module(ext).check_available(path)
+
+
+def check_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:
+    """Refuse a destination that would lose part of ``cloud`` (its normals,
+    colours, quality or named attributes) or its coordinates' precision; run it
+    on the input, before a filter starts, and again when writing."""
+    path = os.fspath(path)
+    ext = _ext(path)
+    check_destination(path, needs=needs)
+    have = {"normal": cloud.normals is not None, "color": cloud.colors is not None,
+            "quality": cloud.quality is not None, "attributes": bool(cloud.attributes)}
+    if ext == ".e57":
+        from .e57 import _WRITABLE
+
+        have["attributes"] = any(k not in (*_WRITABLE, "scan_index") for k in cloud.attributes)
+        have["quality"] = have["quality"] and "intensity" in cloud.attributes
+    lost = [k for k, v in have.items() if v and k not in CAN_STORE[ext]]
+    if lost:
+        what = ", ".join(sorted(cloud.attributes)) if lost == ["attributes"] else " and ".join(
+            f"{k}s" if k != "attributes" else f"attributes ({', '.join(sorted(cloud.attributes))})"
+            for k in lost)
+        raise PointCloudError(
+            f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
+            f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
+    if ext == ".e57":
+        from .e57 import check_precision
+
+        check_precision(cloud, path)
+
+
+def write_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:
+    """Write ``cloud`` to ``path`` atomically in the format its extension names.
+
+    Every attribute the format can store is written, at full precision; a
+    temporary file in the same folder is renamed over ``path`` only once
+    complete, and removed on any error or on SIGINT/SIGTERM, so a failure never
+    leaves a partial or stray file.
+    """
+    path = os.fspath(path)
+    check_cloud(cloud, path, needs=needs)
+    ext = _ext(path)
+    mod = _module(ext)
+    with _temporary(path) as tmp:
+        mod.write(cloud, tmp)
+
+
+@contextmanager
+def _temporary(path: str):
+    """A temporary file beside ``path``, moved over it on success and removed
+    on failure or interruption."""
+    folder = os.path.dirname(os.path.abspath(path))
+    ext = _ext(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".pcprep-", suffix=ext, dir=folder)
+    except OSError as exc:
+        raise PointCloudError(f"cannot write {path!r}: {exc.strerror or exc}") from exc
+    os.close(fd)
+
+    def _cleanup(signum, frame):
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        previous = old[signum]
+        if callable(previous):
+            previous(signum, frame)
+        raise KeyboardInterrupt if signum == signal.SIGINT else SystemExit(128 + signum)
+
+    old = {}
+    main_thread = _in_main_thread()
+    if main_thread:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, _cleanup)
+    try:
+        yield tmp
+        os.chmod(tmp, file_mode())  # mkstemp creates 0600
+        os.replace(tmp, path)
+    except BaseException as exc:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        if isinstance(exc, (PointCloudError, KeyboardInterrupt, SystemExit)):
+            raise
+        if isinstance(exc, (OSError, ValueError, TypeError)):
+            raise PointCloudError(f"cannot write {path!r}: {_first_line(exc)}") from exc
+        raise
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _in_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def file_mode() -> int:
+    """Permissions of a newly created file under the current umask (0644 usually)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _read_pymeshlab(path: str) -> Cloud:
+    import pymeshlab
+
+    from ..convert import mesh_to_cloud
+
+    ms = pymeshlab.MeshSet()
+    try:
+        ms.load_new_mesh(path)
+    except Exception as exc:  # pymeshlab raises its own exception type
+        raise PointCloudError(f"cannot read {path!r}: {_first_line(exc)}") from exc
+    cloud = mesh_to_cloud(ms.current_mesh())
+    return cloud.with_(label=os.path.basename(path), meta={"format": _ext(path)})

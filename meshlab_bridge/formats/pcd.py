@@ -1,0 +1,171 @@
+"""
+pcd.py
+------
+PCL's PCD format, version 0.7, ``DATA ascii`` and ``DATA binary`` (read and
+write; ``binary_compressed`` is refused with a message).  Fields ``x y z`` are
+the positions, ``normal_x normal_y normal_z`` the normals, ``rgb``/``rgba`` (a
+packed float or uint, as PCL writes it) the colours; every other field is kept
+in ``attributes`` with its type (fields with COUNT > 1 as (n, k) arrays).
+PCL marks invalid points of organised clouds with NaN: those rows are reported
+like any non-finite row.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from pcprep.filters._validation import PointCloudError
+
+from ..cloud import Cloud
+
+_NORMALS = ("normal_x", "normal_y", "normal_z")
+_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
+         "POINTS", "DATA")
+
+
+def _header(f, path: str) -> dict:
+    head: dict = {}
+    while True:
+        raw = f.readline()
+        if not raw:
+            raise PointCloudError(f"cannot read {path!r}: the PCD header has no DATA line")
+        line = raw.decode("ascii", errors="replace").strip()
+        if not line or line.startswith("#"):
+            continue
+        key, *vals = line.split()
+        if key not in _KEYS:
+            raise PointCloudError(f"cannot read {path!r}: unknown PCD header line {line!r}")
+        head[key] = vals
+        if key == "DATA":
+            return head
+
+
+def _dtype(head: dict, path: str) -> np.dtype:
+    fields = head.get("FIELDS", [])
+    sizes = [int(s) for s in head.get("SIZE", [])]
+    types = head.get("TYPE", [])
+    counts = [int(c) for c in head.get("COUNT", ["1"] * len(fields))]
+    if not (len(fields) == len(sizes) == len(types) == len(counts)):
+        raise PointCloudError(f"cannot read {path!r}: FIELDS, SIZE, TYPE and COUNT differ "
+                              "in length")
+    out = []
+    for name, size, kind, count in zip(fields, sizes, types, counts):
+        code = {"F": "f", "U": "u", "I": "i"}.get(kind)
+        if code is None:
+            raise PointCloudError(f"cannot read {path!r}: unknown PCD type {kind!r}")
+        out.append((name, f"<{code}{size}") if count == 1 else (name, f"<{code}{size}", (count,)))
+    return np.dtype(out)
+
+
+def read(path: str) -> Cloud:
+    with open(path, "rb") as f:
+        head = _header(f, path)
+        dt = _dtype(head, path)
+        n = int(head.get("POINTS", [0])[0]) or int(head["WIDTH"][0]) * int(head["HEIGHT"][0])
+        mode = head["DATA"][0]
+        if mode == "binary":
+            raw = f.read()
+            if len(raw) < n * dt.itemsize:
+                raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
+                                      f"the file holds {len(raw) // dt.itemsize}")
+            if len(raw) > n * dt.itemsize:
+                raise PointCloudError(f"cannot read {path!r}: data continues after the {n} "
+                                      "points the header declares")
+            data = np.frombuffer(raw, dtype=dt, count=n).copy()
+        elif mode == "ascii":
+            lines = [ln.split() for ln in f.read().decode("ascii", "replace").splitlines()
+                     if ln.strip()]
+            if len(lines) != n:
+                raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
+                                      f"the file holds {len(lines)} rows")
+            flat = [dt[name].shape[0] if dt[name].shape else 1 for name in dt.names]
+            data = np.zeros(n, dtype=dt)
+            try:
+                table = np.array(lines, dtype=np.float64)
+            except ValueError:
+                raise PointCloudError(f"cannot read {path!r}: a row is not numeric or has "
+                                      "the wrong number of values") from None
+            col = 0
+            for name, width in zip(dt.names, flat):
+                vals = table[:, col:col + width]
+                data[name] = vals[:, 0] if not dt[name].shape else vals
+                col += width
+        else:
+            raise PointCloudError(f"cannot read {path!r}: PCD DATA {mode} is not supported "
+                                  "(save it as ascii or binary, e.g. pcl_convert_pcd_ascii_binary)")
+    return _to_cloud(data, head, path)
+
+
+def _to_cloud(data: np.ndarray, head: dict, path: str) -> Cloud:
+    names = list(data.dtype.names)
+    for c in "xyz":
+        if c not in names:
+            raise PointCloudError(f"cannot read {path!r}: the PCD file has no {c!r} field")
+    pts = np.column_stack([data[c].astype(np.float64) for c in "xyz"])
+    used = {"x", "y", "z"}
+    normals = None
+    if all(c in names for c in _NORMALS):
+        normals = np.column_stack([data[c].astype(np.float64) for c in _NORMALS])
+        used.update(_NORMALS)
+    colors = None
+    key = next((c for c in ("rgb", "rgba") if c in names), None)
+    if key is not None:
+        packed = np.ascontiguousarray(data[key]).view(np.uint32)
+        colors = np.column_stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255,
+                                  (packed >> 24) & 255 if key == "rgba" else
+                                  np.full(len(packed), 255)]) / 255.0
+        used.add(key)
+    quality = None
+    if "quality" in names:  # pcprep writes MeshLab's quality under this name
+        quality = data["quality"].astype(np.float64)
+        used.add("quality")
+    attrs = {nm: np.ascontiguousarray(data[nm]) for nm in names if nm not in used}
+    meta = {"format": ".pcd", "pcd": {"viewpoint": head.get("VIEWPOINT"), "rgb": key,
+                                      "width": head.get("WIDTH"), "height": head.get("HEIGHT")}}
+    return Cloud(pts, normals, colors, quality, None, attrs, os.path.basename(path), meta)
+
+
+def write(cloud: Cloud, path: str) -> None:
+    cols: list[tuple[str, np.ndarray]] = [(c, cloud.points[:, j]) for j, c in enumerate("xyz")]
+    if cloud.normals is not None:
+        cols += [(c, cloud.normals[:, j]) for j, c in enumerate(_NORMALS)]
+    info = cloud.meta.get("pcd", {})
+    if cloud.colors is not None:
+        c8 = np.rint(np.clip(cloud.colors, 0, 1) * 255).astype(np.uint32)
+        packed = (c8[:, 0] << 16) | (c8[:, 1] << 8) | c8[:, 2]
+        key = info.get("rgb") or "rgb"
+        if key == "rgba":
+            packed |= c8[:, 3] << 24
+        cols.append((key, packed.view(np.float32) if key == "rgb" else packed))
+    if cloud.quality is not None:
+        cols.append(("quality", cloud.quality))
+    for name, arr in cloud.attributes.items():
+        arr = np.asarray(arr)
+        cols.append((name, arr.astype(np.uint8) if arr.dtype == bool else arr))
+    dt = []
+    for name, arr in cols:
+        a = arr if arr.dtype.kind != "f" or name in ("rgb",) else arr.astype(
+            np.float32 if arr.dtype == np.float32 else np.float64)
+        dt.append((name, a.dtype.newbyteorder("<").str) if a.ndim == 1 else
+                  (name, a.dtype.newbyteorder("<").str, (a.shape[1],)))
+    data = np.empty(len(cloud), dtype=dt)
+    for name, arr in cols:
+        data[name] = arr
+    kinds = {"f": "F", "u": "U", "i": "I"}
+    fields = data.dtype.names
+    view = " ".join(info.get("viewpoint") or ["0", "0", "0", "1", "0", "0", "0"])
+    header = "\n".join([
+        "# .PCD v0.7 - Point Cloud Data file format (written by pcprep)",
+        "VERSION 0.7",
+        "FIELDS " + " ".join(fields),
+        "SIZE " + " ".join(str(data.dtype[f].base.itemsize) for f in fields),
+        "TYPE " + " ".join(kinds[data.dtype[f].base.kind] for f in fields),
+        "COUNT " + " ".join(str(data.dtype[f].shape[0] if data.dtype[f].shape else 1)
+                            for f in fields),
+        f"WIDTH {len(cloud)}", "HEIGHT 1", f"VIEWPOINT {view}", f"POINTS {len(cloud)}",
+        "DATA binary", ""])
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(data.tobytes())

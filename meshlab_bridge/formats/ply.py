@@ -1,0 +1,211 @@
+"""
+ply.py
+------
+PLY through plyfile, which keeps what pymeshlab's loader drops: every vertex
+property with its type, faces, other elements, comments, ASCII or binary.
+
+Reading maps ``x y z`` to positions, ``nx ny nz`` (or ``normal_x …``) to
+normals, ``red green blue [alpha]`` to colours, ``quality`` (or ``scalar``) to
+quality, and keeps every other vertex property in ``attributes``.  A file whose
+data holds more or fewer rows than its header declares is refused.  Writing
+restores the input's property order and types where the values still fit them
+exactly (so an unchanged float32 column stays float32) and uses float64
+otherwise; new attributes are appended.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+
+import numpy as np
+
+from pcprep.filters._validation import PointCloudError
+
+from ..cloud import Cloud
+
+_NORMALS = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+_COLORS = ("red", "green", "blue", "alpha")
+_QUALITY = ("quality", "scalar")
+
+
+class _KeepOpen(io.FileIO):
+    """plyfile closes the stream it reads; keep it open to check what follows."""
+
+    def close(self):  # noqa: D401 -- closed by ``really_close``
+        pass
+
+    def really_close(self):
+        super().close()
+
+
+def read(path: str) -> Cloud:
+    from plyfile import PlyData, PlyParseError
+
+    f = _KeepOpen(path, "rb")
+    try:
+        try:
+            ply = PlyData.read(f)
+        except PlyParseError as exc:
+            raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
+        if "vertex" not in ply:
+            raise PointCloudError(f"cannot read {path!r}: no vertex element")
+        if ply.text:
+            _check_ascii_rows(path, ply)
+        else:
+            rest = f.read(64)
+            if rest.strip(b"\x00\n\r\t ") or len(rest) > 8:
+                raise PointCloudError(
+                    f"cannot read {path!r}: data continues after the {ply['vertex'].count} "
+                    "vertices (and other elements) its header declares")
+        vert = ply["vertex"]
+        data = np.array(vert.data)  # plyfile may return a memmap
+        names = list(data.dtype.names)
+    finally:
+        f.really_close()
+    for c in "xyz":
+        if c not in names:
+            raise PointCloudError(f"cannot read {path!r}: vertices have no {c!r} property")
+    pts = np.column_stack([data[c].astype(np.float64) for c in "xyz"])
+    used = {"x", "y", "z"}
+    normals = None
+    for trio in _NORMALS:
+        if all(t in names for t in trio):
+            normals = np.column_stack([data[t].astype(np.float64) for t in trio])
+            used.update(trio)
+            break
+    colors = None
+    if all(c in names for c in _COLORS[:3]):
+        cols = [c for c in _COLORS if c in names]
+        colors = np.ones((len(pts), 4))
+        for j, c in enumerate(cols):
+            colors[:, j] = _unit_color(data[c])
+        used.update(cols)
+    quality = None
+    for q in _QUALITY:
+        if q in names:
+            quality = data[q].astype(np.float64)
+            used.add(q)
+            break
+    attrs = {n: np.ascontiguousarray(data[n]) for n in names if n not in used}
+    faces = _faces(ply, len(pts), path)
+    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
+    meta = {"format": ".ply", "ply": {
+        "text": bool(ply.text), "byte_order": ply.byte_order,
+        "comments": list(ply.comments), "obj_info": list(ply.obj_info),
+        "types": {n: data.dtype[n].str for n in names}, "order": names,
+        "other_elements": others, "n_vertices": len(pts)}}
+    return Cloud(pts, normals, colors, quality, faces, attrs, os.path.basename(path), meta)
+
+
+def _unit_color(col: np.ndarray) -> np.ndarray:
+    if col.dtype.kind in "ui":
+        return col.astype(np.float64) / float(np.iinfo(col.dtype).max)
+    return col.astype(np.float64)
+
+
+def _check_ascii_rows(path: str, ply) -> None:
+    """In ASCII PLY each row is one line: count them against the header."""
+    declared = sum(el.count for el in ply.elements)
+    with open(path, "rb") as f:
+        for line in f:
+            if line.strip() == b"end_header":
+                break
+        rows = sum(1 for line in f if line.strip())
+    if rows != declared:
+        raise PointCloudError(
+            f"cannot read {path!r}: the header declares {declared} rows "
+            f"({', '.join(f'{el.count} {el.name}' for el in ply.elements)}) but the file "
+            f"holds {rows}")
+
+
+def _faces(ply, n: int, path: str) -> np.ndarray | None:
+    if "face" not in ply or ply["face"].count == 0:
+        return None
+    el = ply["face"]
+    key = next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
+               None)
+    if key is None:
+        return None
+    tris = []
+    for poly in el.data[key]:
+        poly = np.asarray(poly, dtype=np.int64)
+        for j in range(1, len(poly) - 1):  # fan-triangulate polygons
+            tris.append((poly[0], poly[j], poly[j + 1]))
+    faces = np.array(tris, dtype=np.int64).reshape(-1, 3)
+    if len(faces) and (faces.min() < 0 or faces.max() >= n):
+        raise PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
+                              f"does not exist (index {int(faces.max())}, {n} vertices)")
+    return faces
+
+
+def _fits(values: np.ndarray, dtype: np.dtype) -> bool:
+    """True when ``values`` survive a cast to ``dtype`` exactly."""
+    try:
+        cast = values.astype(dtype)
+    except (TypeError, ValueError):
+        return False
+    with np.errstate(invalid="ignore"):
+        back = cast.astype(values.dtype)
+    same = (back == values) | (np.isnan(values) & np.isnan(back)) if values.dtype.kind == "f" \
+        else back == values
+    return bool(np.all(same))
+
+
+def _column(values: np.ndarray, original: str | None) -> np.ndarray:
+    values = np.asarray(values)
+    if values.dtype == bool:
+        values = values.astype(np.uint8)
+    if original is not None and _fits(values, np.dtype(original)):
+        return values.astype(np.dtype(original))
+    if values.dtype.kind == "f":
+        return values.astype(np.float64)
+    return values
+
+
+def write(cloud: Cloud, path: str) -> None:
+    from plyfile import PlyData, PlyElement
+
+    info = cloud.meta.get("ply", {})
+    types = info.get("types", {})
+    cols: dict[str, np.ndarray] = {}
+    for j, c in enumerate("xyz"):
+        cols[c] = _column(cloud.points[:, j], types.get(c))
+    if cloud.normals is not None:
+        trio = next((t for t in _NORMALS if t[0] in types), _NORMALS[0])
+        for j, c in enumerate(trio):
+            cols[c] = _column(cloud.normals[:, j], types.get(c))
+    if cloud.colors is not None:
+        for j, c in enumerate(_COLORS):
+            if c == "alpha" and c not in types and np.all(cloud.colors[:, 3] == 1.0):
+                continue
+            t = np.dtype(types.get(c, "u1"))
+            v = cloud.colors[:, j]
+            cols[c] = (np.rint(v * np.iinfo(t).max).astype(t) if t.kind in "ui"
+                       else v.astype(t))
+    if cloud.quality is not None:
+        q = next((q for q in _QUALITY if q in types), "quality")
+        cols[q] = _column(cloud.quality, types.get(q))
+    for name, arr in cloud.attributes.items():
+        arr = np.asarray(arr)
+        if arr.ndim == 1:
+            cols[name] = _column(arr, types.get(name))
+        else:
+            for k in range(arr.shape[1]):
+                cols[f"{name}_{k}"] = _column(arr[:, k], types.get(f"{name}_{k}"))
+    order = [n for n in info.get("order", []) if n in cols] + \
+        [n for n in cols if n not in info.get("order", [])]
+    vertex = np.empty(len(cloud), dtype=[(n, cols[n].dtype.str) for n in order])
+    for n in order:
+        vertex[n] = cols[n]
+    elements = [PlyElement.describe(vertex, "vertex")]
+    if cloud.faces is not None and len(cloud.faces):
+        face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
+        face["vertex_indices"] = cloud.faces
+        elements.append(PlyElement.describe(face, "face"))
+    if len(cloud) == info.get("n_vertices", -1):  # edges etc. index the original rows
+        elements += list(info.get("other_elements", {}).values())
+    ply = PlyData(elements, text=info.get("text", False),
+                  byte_order=info.get("byte_order", "<") if not info.get("text") else "=",
+                  comments=info.get("comments", []), obj_info=info.get("obj_info", []))
+    ply.write(path)

@@ -1,0 +1,282 @@
+"""Files in and out with nothing lost: every attribute and header field survives,
+coordinates in projected systems round-trip bit-exactly, malformed rows are
+refused by line or row (never dropped or shifted silently), and destinations that
+cannot hold a result are refused before any work."""
+
+import os
+import stat
+
+import laspy
+import numpy as np
+import pytest
+from plyfile import PlyData, PlyElement
+
+from pcprep import PointCloudError
+from pcprep.meshlab_bridge import formats
+from pcprep.meshlab_bridge.cli import main
+from pcprep.meshlab_bridge.cloud import Cloud
+
+UTM = np.array([452_000.0, 5_213_000.0, 310.0])
+
+
+def _random_las(path, fmt, n=400, seed=0, version=None):
+    """A LAS/LAZ file of point format ``fmt`` with random values in every
+    dimension, two extra-byte dimensions and UTM-like offsets."""
+    g = np.random.default_rng(seed)
+    header = laspy.LasHeader(point_format=fmt, version=version or ("1.4" if fmt >= 6 else "1.2"))
+    header.add_extra_dims([laspy.ExtraBytesParams("confidence", "f4"),
+                           laspy.ExtraBytesParams("tag", "u2")])
+    header.offsets, header.scales = UTM, [0.001, 0.001, 0.001]
+    las = laspy.LasData(header)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+    rec = las.points.array
+    for name in rec.dtype.names:
+        dt = rec.dtype[name]
+        if dt.kind in "ui":
+            info = np.iinfo(dt)
+            rec[name] = g.integers(max(info.min, -2**31), min(info.max, 2**31 - 1), n,
+                                   endpoint=True).astype(dt)
+        else:
+            rec[name] = g.random(n).astype(dt)
+    # a smooth surface, so the filters have something to work on
+    xy = g.uniform(0, 20_000, (n, 2)).astype(np.int64)
+    las.X, las.Y = xy[:, 0], xy[:, 1]
+    las.Z = (2000 * np.sin(xy[:, 0] / 3000.0)).astype(np.int64) + 5000
+    las.write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("fmt", [1, 3, 6, 7, 8])
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_las_round_trip_is_bit_exact(tmp_path, fmt, ext):
+    src = _random_las(tmp_path / f"in{ext}", fmt)
+    cloud = formats.read_cloud(src)
+    assert {"intensity", "classification", "gps_time", "confidence", "tag"} <= set(
+        cloud.attributes)
+    dst = tmp_path / f"out{ext}"
+    formats.write_cloud(cloud, dst)
+    a, b = laspy.read(str(src)), laspy.read(str(dst))
+    assert a.points.array.tobytes() == b.points.array.tobytes()
+    assert a.header.point_format.id == b.header.point_format.id
+    assert a.header.version == b.header.version
+    assert np.array_equal(a.header.scales, b.header.scales)
+    assert np.array_equal(a.header.offsets, b.header.offsets)
+
+
+def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
+    src = _random_las(tmp_path / "scan.laz", 6, n=3000)
+    out = tmp_path / "holes.laz"
+    assert main(["holes", str(src), str(out), "--quiet"]) == 0
+    a, b = laspy.read(str(src)), laspy.read(str(out))
+    for dim in a.point_format.dimension_names:
+        assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), dim
+    assert "hole" in b.point_format.extra_dimension_names
+    assert b["hole"].dtype == np.uint8 and set(np.unique(b["hole"])) <= {0, 1}
+    assert np.array_equal(a.header.offsets, b.header.offsets)
+
+
+def test_las_written_from_another_format_spans_its_extent(tmp_path):
+    g = np.random.default_rng(2)
+    pts = UTM + g.uniform(0, 500, (300, 3))
+    formats.write_cloud(Cloud(pts), tmp_path / "x.las")
+    back = formats.read_cloud(tmp_path / "x.las")
+    header = back.meta["las_header"]
+    assert np.abs(back.points - pts).max() <= 0.5 * header.scales.max() + 1e-9
+    assert header.scales.max() <= 1e-6
+
+
+def _ply_with_properties(path, text, n=500, seed=3, faces=True):
+    g = np.random.default_rng(seed)
+    v = np.zeros(n, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("intensity", "u2"),
+                           ("classification", "u1"), ("confidence", "f4")])
+    ang = g.uniform(0, 2 * np.pi, n)
+    h = g.uniform(-1, 1, n)
+    v["x"], v["y"], v["z"] = (UTM[0] + np.sqrt(1 - h**2) * np.cos(ang),
+                              UTM[1] + np.sqrt(1 - h**2) * np.sin(ang), UTM[2] + h)
+    v["intensity"] = g.integers(0, 65535, n)
+    v["classification"] = g.integers(0, 20, n)
+    v["confidence"] = g.random(n)
+    els = [PlyElement.describe(v, "vertex")]
+    if faces:
+        f = np.zeros(n - 2, dtype=[("vertex_indices", "i4", (3,))])
+        f["vertex_indices"] = np.c_[np.zeros(n - 2), np.arange(1, n - 1), np.arange(2, n)]
+        els.append(PlyElement.describe(f, "face"))
+    PlyData(els, text=text, comments=["made by the tests"]).write(str(path))
+    return v
+
+
+@pytest.mark.parametrize("text", [True, False])
+def test_ply_keeps_custom_properties_faces_and_comments(tmp_path, text):
+    v = _ply_with_properties(tmp_path / "a.ply", text)
+    cloud = formats.read_cloud(tmp_path / "a.ply")
+    assert list(cloud.attributes) == ["intensity", "classification", "confidence"]
+    assert cloud.faces.shape == (498, 3)
+    formats.write_cloud(cloud, tmp_path / "b.ply")
+    back = PlyData.read(str(tmp_path / "b.ply"))
+    assert back["vertex"].data.dtype == v.dtype
+    for name in v.dtype.names:
+        assert np.array_equal(back["vertex"].data[name], v[name]), name
+    assert back["face"].count == 498 and "made by the tests" in back.comments
+    assert back.text == text
+
+
+@pytest.mark.parametrize("command", ["denoise", "saliency", "features", "holes", "simplify"])
+def test_every_filter_keeps_every_input_attribute(tmp_path, command):
+    v = _ply_with_properties(tmp_path / "in.ply", text=False, n=2500, faces=False)
+    out = tmp_path / "out.ply"
+    args = [command, str(tmp_path / "in.ply"), str(out), "--quiet"]
+    if command == "denoise":
+        args += ["--n-iter", "1"]
+    if command == "simplify":
+        args += ["--ratio", "0.3"]
+    assert main(args) == 0
+    got = PlyData.read(str(out))["vertex"].data
+    if command == "simplify":
+        # kept rows: find them by position (points are never moved by SDBS)
+        key = {tuple(r): i for i, r in enumerate(np.c_[v["x"], v["y"], v["z"]])}
+        rows = np.array([key[tuple(r)] for r in np.c_[got["x"], got["y"], got["z"]]])
+        assert len(rows) == round(0.3 * len(v))
+    else:
+        rows = np.arange(len(v))
+        assert len(got) == len(v)
+    for name in ("intensity", "classification", "confidence"):
+        assert got.dtype[name] == v.dtype[name]
+        assert np.array_equal(got[name], v[name][rows]), name
+
+
+@pytest.mark.parametrize("text", [True, False])
+def test_non_finite_ply_rows_are_refused_or_dropped_by_index(tmp_path, text):
+    v = np.zeros(4, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    v["x"] = [0.0, 1.0, np.nan, 3.0]
+    PlyData([PlyElement.describe(v, "vertex")], text=text).write(str(tmp_path / "n.ply"))
+    with pytest.raises(PointCloudError, match=r"rows 2\)"):
+        formats.read_cloud(tmp_path / "n.ply")
+    dropped = formats.read_cloud(tmp_path / "n.ply", nonfinite="drop")
+    assert len(dropped) == 3 and list(dropped.meta["dropped_rows"]) == [2]
+    assert main(["info", str(tmp_path / "n.ply")]) == 0
+
+
+def test_ply_with_more_rows_than_declared_is_refused(tmp_path):
+    path = tmp_path / "more.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n"
+                    "property float y\nproperty float z\nend_header\n0 0 0\n1 1 1\n2 2 2\n")
+    with pytest.raises(PointCloudError, match="declares 2 rows"):
+        formats.read_cloud(path)
+    v = np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    PlyData([PlyElement.describe(v, "vertex")], text=False).write(str(tmp_path / "b.ply"))
+    with open(tmp_path / "b.ply", "ab") as f:
+        f.write(np.ones(6, dtype="f4").tobytes())
+    with pytest.raises(PointCloudError, match="continues after"):
+        formats.read_cloud(tmp_path / "b.ply")
+
+
+@pytest.mark.parametrize("name, text, match", [
+    ("nan.off", "OFF\n3 0 0\n0 0 0\nnan nan nan\n1 1 1\n", r"rows 1\)"),
+    ("nan.obj", "v 0 0 0\nv 1 1 1\nv inf 0 0\n", r"rows 2\)"),
+    ("abc.obj", "v 0 0 0\nv abc def ghi\n", r"line 2: vertex 'abc def ghi' is not numeric"),
+    ("short.off", "OFF\n3 0 0\n0 0 0\n1 1 1\n", "declares 3 vertices"),
+    ("long.off", "OFF\n2 0 0\n0 0 0\n1 1 1\n2 2 2\n", "continues after"),
+    ("cols.xyz", "0 0 0\n1 1\n", "line 2: expected 3"),
+])
+def test_text_formats_refuse_malformed_rows(tmp_path, name, text, match):
+    (tmp_path / name).write_text(text)
+    with pytest.raises(PointCloudError, match=match):
+        formats.read_cloud(tmp_path / name)
+
+
+@pytest.mark.parametrize("ext", [".xyz", ".obj", ".off", ".pcd", ".ply"])
+def test_text_and_pcd_formats_keep_full_precision(tmp_path, ext):
+    g = np.random.default_rng(4)
+    pts = UTM + g.normal(size=(200, 3))
+    nrm = g.normal(size=(200, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    formats.write_cloud(Cloud(pts, nrm), tmp_path / f"c{ext}")
+    back = formats.read_cloud(tmp_path / f"c{ext}")
+    assert np.array_equal(back.points, pts) and np.array_equal(back.normals, nrm)
+
+
+def test_pcd_ascii_and_binary_as_pcl_writes_them(tmp_path):
+    header = ("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+              "FIELDS x y z intensity rgb\nSIZE 4 4 4 4 4\nTYPE F F F F F\nCOUNT 1 1 1 1 1\n"
+              "WIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\n")
+    packed = np.array([0xFF0000, 0x00FF00, 0x0000FF], dtype=np.uint32).view(np.float32)
+    rows = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float32)
+    inten = np.array([0.5, 1.0, 2.0], dtype=np.float32)
+    ascii_body = "".join(f"{r[0]} {r[1]} {r[2]} {i} {float(p)!r}\n" for r, i, p in
+                         zip(rows, inten, packed.astype(np.float64)))
+    (tmp_path / "a.pcd").write_text(header + "DATA ascii\n" + ascii_body)
+    rec = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"),
+                             ("rgb", "<f4")])
+    rec["x"], rec["y"], rec["z"] = rows.T
+    rec["intensity"], rec["rgb"] = inten, packed
+    (tmp_path / "b.pcd").write_bytes((header + "DATA binary\n").encode() + rec.tobytes())
+    for name in ("a.pcd", "b.pcd"):
+        c = formats.read_cloud(tmp_path / name)
+        assert np.array_equal(c.points, rows.astype(np.float64))
+        assert np.array_equal(c.attributes["intensity"], inten)
+        assert np.array_equal(c.colors[:, :3], np.eye(3))
+    (tmp_path / "c.pcd").write_text(header + "DATA binary_compressed\n")
+    with pytest.raises(PointCloudError, match="binary_compressed is not supported"):
+        formats.read_cloud(tmp_path / "c.pcd")
+
+
+def test_e57_scans_merge_with_their_fields(tmp_path):
+    pye57 = pytest.importorskip("pye57")
+    g = np.random.default_rng(5)
+    pts = g.normal(size=(300, 3))
+    e57 = pye57.E57(str(tmp_path / "s.e57"), mode="w")
+    e57.write_scan_raw({"cartesianX": pts[:, 0], "cartesianY": pts[:, 1],
+                        "cartesianZ": pts[:, 2], "intensity": g.random(300).astype(np.float32)})
+    e57.close()
+    c = formats.read_cloud(tmp_path / "s.e57")
+    assert np.allclose(c.points, pts, atol=1e-6) and "intensity" in c.attributes
+    with pytest.raises(PointCloudError, match="float32"):
+        formats.write_cloud(Cloud(pts + UTM), tmp_path / "far.e57")
+
+
+@pytest.mark.parametrize("ext", [".stl", ".dxf", ".u3d", ".wrl", ".e57x", ""])
+def test_outputs_that_cannot_hold_the_result_are_refused_before_the_run(tmp_path, ext):
+    src = tmp_path / "in.ply"
+    _ply_with_properties(src, text=False, n=600, faces=False)
+    out = tmp_path / f"out{ext}"
+    assert main(["saliency", str(src), str(out), "--quiet"]) == 1
+    assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+
+
+def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys):
+    src = tmp_path / "in.ply"
+    _ply_with_properties(src, text=False, n=600, faces=False)
+    assert main(["denoise", str(src), str(tmp_path / "out.xyz"), "--quiet"]) == 1
+    assert "intensity" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+
+
+def test_unwritable_or_missing_destinations_and_folder_inputs(tmp_path, capsys, monkeypatch):
+    src = tmp_path / "in.ply"
+    _ply_with_properties(src, text=False, n=600, faces=False)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    real_access = os.access
+    if real_access(locked, os.W_OK):  # root writes anywhere: let the check see the mode
+        monkeypatch.setattr(os, "access", lambda p, mode: real_access(p, mode) and not (
+            os.fspath(p) == str(locked) and mode & os.W_OK))
+    try:
+        assert main(["saliency", str(src), str(locked / "o.ply"), "--quiet"]) == 1
+        assert "not writable" in capsys.readouterr().err
+    finally:
+        locked.chmod(stat.S_IRWXU)
+    assert main(["saliency", str(src), str(tmp_path / "no" / "o.ply"), "--quiet"]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["saliency", str(tmp_path), str(tmp_path / "o.ply"), "--quiet"]) == 1
+    assert "is a folder" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["in.ply", "locked"]
+
+
+def test_info_lists_attributes_crs_and_counts(tmp_path, capsys):
+    src = _random_las(tmp_path / "s.las", 7, n=500)
+    assert main(["info", str(src)]) == 0
+    out = capsys.readouterr().out
+    for word in ("intensity", "gps_time", "confidence", "uint16", "point format 7",
+                 "isolated points", "non-finite points: 0"):
+        assert word in out, word
