@@ -1,8 +1,13 @@
 """
 simplify.py
 -----------
-SDBS: saliency-dictionary-based simplification of a point cloud (thesis ch.6,
-§6.3, eqs (6.1)-(6.11)); returns the indices of the kept input points.
+SDBS: saliency-dictionary-based simplification of a point cloud, thesis chapter
+6, §6.3, eqs (6.1)-(6.11).  Per-point features from a weighted PCA are coded
+against a K-SVD dictionary; the code's sparsity times its residual is a saliency,
+and a greedy pass by decreasing saliency keeps points and removes their
+neighbours within a radius inversely proportional to it.  Returns the indices of
+the kept input points.  The decisions behind each rule, with their measurements,
+are in docs/decisions/simplify.md.
 """
 
 from __future__ import annotations
@@ -22,7 +27,8 @@ from .neighbors import CHUNK, build_tree, knn, weighted_pca
 log = logging.getLogger("pcprep")
 
 PARAMS = (
-    Param("ratio", float, low=0.0, high=1.0, closed="neither", unit="fraction", optional=True),
+    Param("ratio", float, low=0.0, high=1.0, closed="neither", unit="fraction",
+          optional=True),
     Param("count", int, low=1, unit="count", optional=True),
     Param("delta", float, low=0.0, closed="neither", unit="h", optional=True),
     Param("k", int, low=4, high=200, unit="count"),
@@ -85,7 +91,8 @@ def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=
         dist, idx = knn(P, k, tree=tree)
     else:
         dist, idx = nn[0][:, :k], nn[1][:, :k]  # float32 lists stay float32
-    h = float(dist[:, 1:7].mean(dtype=np.float64))  # mean distance to the 6 nearest neighbours
+    # h: the mean distance to the 6 nearest neighbours
+    h = float(dist[:, 1:7].mean(dtype=np.float64))
     diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     if not np.isfinite(h) or h <= 1e-9 * diag:
         raise PointCloudError("simplify_sdbs: every point coincides with its "
@@ -158,7 +165,8 @@ def _ball_edges(P, rows, rank, rho, tree):
         balls = tree.query_ball_point(P[tt], rho[tt], workers=-1)
         lens = np.fromiter(map(len, balls), dtype=np.int64, count=len(balls))
         bs = np.repeat(tt, lens)
-        bd = np.fromiter(chain.from_iterable(balls), dtype=np.int64, count=int(lens.sum()))
+        bd = np.fromiter(chain.from_iterable(balls), dtype=np.int64,
+                         count=int(lens.sum()))
         ok = rank[bd] > rank[bs]
         src_l.append(bs[ok].astype(np.int32))
         dst_l.append(bd[ok].astype(np.int32))
@@ -308,88 +316,71 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
                   sf_floor: float = 0.3,
                   max_iter: int = 5, max_train: int = 10000,
                   seed: int | None = 0) -> SimplifyResult:
-    """Simplify a point cloud by sparse-coding saliency (SDBS, thesis ch.6).
+    """Simplify a point cloud by sparse-coding saliency (SDBS, Leal Narváez 2020, ch. 6).
+
+    Features F = (n, σ, p) per point from a weighted PCA (6.1)-(6.4); a K-SVD
+    dictionary of ``n_atoms`` atoms (Alg. 3.3) and Lasso codes α of every point
+    (3.7); the saliency Sf = N(‖α‖₀)·N(‖F − Dα‖₂) (6.5)-(6.10), N(·) division by
+    the maximum; then, visiting the points by decreasing Sf, each point not yet
+    removed is kept and removes the unvisited points within
+    ρ_i = δ·unit_i / max(Sf_i, sf_floor) (6.11).  δ and the unit are in units of h
+    (mean distance to the 6 nearest neighbours).  Points are never moved.
 
     Parameters
     ----------
     points : (n, 3) float
-        The cloud.  Points are never moved: the result is a subset.
+        The cloud.
     normals : (n, 3) float, optional
-        Only used to orient the PCA normals of the features (otherwise they
-        point away from the centroid).
+        Only orient the PCA normals of the features (else away from the centroid).
     ratio : float, optional
-        Fraction of the points to keep, in (0, 1).
+        Fraction of the points to keep, in (0, 1); count = round(ratio·n).
     count : int, optional
         Number of points to keep, in [1, n].
     delta : float, optional
-        δ of (6.11) in units of h; the kept count then follows from it.
-        Exactly one of ``ratio``, ``count``, ``delta`` must be given.
+        δ of (6.11); the kept count then follows from it.  Give exactly one of
+        ``ratio``, ``count``, ``delta``.
     k : int, default=16
         Neighbourhood size of the weighted PCA (6.1).
     n_atoms : int, default=200
-        Dictionary size S (thesis: 200).
+        Dictionary size S (the thesis' value).
     alpha : float, default=0.25
-        Lasso weight in ½‖F − Dα‖² + alpha‖α‖₁ (thesis λ = 0.5 in (3.7)).
+        Lasso weight in ½‖F − Dα‖² + alpha‖α‖₁ (the thesis' λ = 0.5 in (3.7)).
     feature_scale : {"balanced", "thesis"}, default="balanced"
-        "balanced": normals as they are, σ divided by its RMS, centred
-        positions divided by their RMS radius, so each of the three groups has
-        unit RMS norm.  "thesis": the raw 7-D vector (positions divided by the
-        bounding-box diagonal so that the result does not depend on units).
+        Feature columns: each group scaled to unit RMS, or the thesis' raw vector.
     density_adapt : float, default=0.5
-        β in [0, 1]: the radius is measured in h^(1−β)·h_i^β, with h_i the
-        point's local spacing (mean distance to its 6 nearest neighbours).
-        β = 0 is the thesis (global h: the output tends to uniform density);
-        β = 1 keeps about the same fraction everywhere (the output follows the
-        input density).  0.5 gave the lowest Δavg without raising Δmax much on
-        the benchmark's non-uniform meshes (cow, elephant).
+        β: the radius unit is h^(1−β)·h_i^β, h_i the local spacing (0 = thesis).
     sf_floor : float, default=0.3
-        ρ_i = δ·unit_i / max(Sf_i, sf_floor): clamps the radius of non-salient
-        points (at most 1/sf_floor times the radius of the most salient ones).
+        Lower clamp of Sf in the radius (6.11), which is infinite at Sf = 0.
     max_iter : int, default=5
-        K-SVD iterations (the rms residual changes by < 5 % after 5 on the
-        benchmark models).
+        K-SVD iterations.
     max_train : int, default=10000
-        Size of the seeded subsample that trains the dictionary (see
-        ``sparse.ksvd``); every point is then coded.
+        Size of the random subsample that trains the dictionary.
     seed : int or None, default=0
-        Seeds the K-SVD subsample and initialisation.
+        Seed of the K-SVD subsample and initialisation; None draws fresh entropy.
 
     Returns
     -------
     SimplifyResult
+        ``keep_idx`` (ascending) and the scores behind it.
 
     Raises
     ------
     PointCloudError
-        Empty cloud, NaN/Inf, fewer than ``k + 1`` points, all points coincident
-        or collinear.
+        Empty, NaN/Inf, fewer than k + 1, coincident or collinear points; bad normals.
     InvalidParameterError
-        Bad parameter, or not exactly one of ratio/count/delta.
+        A parameter out of range, or not exactly one of ratio/count/delta.
 
     Notes
     -----
-    Pipeline: weighted PCA (6.1) → F = (n, σ, p) (6.2)-(6.4) → K-SVD dictionary
-    (Alg. 3.3, S atoms, OMP with 3 atoms while training, on a seeded subsample
-    of ``max_train`` points) → Lasso codes of all points by LARS (3.7) →
-    Sf = N(‖α‖₀)·N(‖F − Dα‖₂) (6.5)-(6.10) → greedy removal with
-    ρ_i = δ/Sf_i (6.11), run as parallel rounds that give exactly the
-    sequential result (``greedy_keep``).
-    Deviations: the PCA weight uses a length (see ``sdbs_features``); the
-    feature columns are balanced by default (the raw columns let positions
-    dominate, ALGORITHMS.md §Ch.6.2; the benchmark's ablation table compares);
-    the radius is clamped with ``sf_floor`` (6.11 is infinite at Sf = 0) and
-    measured in a blend of global and local spacing (``density_adapt``); δ is
-    in units of h; the dictionary is trained on a subsample (speed).
-    For ``ratio``/``count`` δ is searched (secant steps on log count vs
-    log δ, first assuming count ∝ δ^-1.5, kept inside the bracket) until the
-    greedy count is within 1 % of the target (2-3 greedy runs on the
-    benchmark); the kept set is then made exact by dropping the least salient
-    kept points or adding the most salient removed ones (``n_greedy`` reports
-    the greedy count).
-    Speed: one float32 k-NN query (``GRAPH_K`` = 32 neighbours) serves h, the
-    PCA and the removal candidates; the greedy runs ball queries only for kept
-    points whose ball exceeds that list (``greedy_keep``).
-    ``ratio`` means ``count = round(ratio·n)`` (at least 1).
+    Deviations (docs/decisions/simplify.md, by heading): the PCA weight uses a
+    length, exp(−d²/s_i²), where (6.1) mixes a length with a count ("PCA weight");
+    the feature groups are balanced, since raw positions dominate ("Feature
+    scaling"); the radius is clamped and measured in a blend of global and local
+    spacing ("Removal radius"); the dictionary is trained on a subsample, for speed
+    ("Dictionary").  For ``ratio``/``count`` δ is searched and the kept set made
+    exact ("Hitting a count"); the greedy pass gives exactly the sequential result
+    ("Greedy removal").  The thesis' form: ``feature_scale="thesis",
+    density_adapt=0.0``.
 
     Examples
     --------
@@ -401,47 +392,36 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     300
     """
     func = "simplify_sdbs"
-    p = dict(ratio=ratio, count=count, delta=delta, k=k,
-                                    n_atoms=n_atoms, alpha=alpha,
-                                    feature_scale=feature_scale,
-                                    density_adapt=density_adapt,
-                                    sf_floor=sf_floor,
-                                    max_iter=max_iter, max_train=max_train, seed=seed)
-    given = [name for name in ("ratio", "count", "delta") if p[name] is not None]
+    given = [name for name, v in (("ratio", ratio), ("count", count), ("delta", delta))
+             if v is not None]
     if len(given) != 1:
         raise InvalidParameterError(
-            f"{func}: give exactly one of ratio, count, delta (got {', '.join(given) or 'none'})")
-    check_seed(p["seed"], func=func)
-    P = as_points(points, func=func, min_points=p["k"] + 1)
+            f"{func}: give exactly one of ratio, count, delta "
+            f"(got {', '.join(given) or 'none'})")
+    check_seed(seed, func=func)
+    P = as_points(points, func=func, min_points=k + 1)
     n = len(P)
     N = None if normals is None else as_normals(normals, n, func=func)
     check_spread(P, func=func)
-    target = None
-    if p["count"] is not None:
-        if p["count"] > n:
-            raise InvalidParameterError(f"{func}: count must be in [1, {n}] (the number of "
-                                        f"points), got {p['count']}")
-        target = p["count"]
-    elif p["ratio"] is not None:
-        target = max(1, int(round(p["ratio"] * n)))
+    target = _target(ratio, count, n, func)
 
     P = P - P.mean(axis=0)
     tree = build_tree(P)
     # one k-NN query serves h, the PCA and the removal candidates
-    gd, gi = _knn32(P, min(n, max(p["k"], GRAPH_K)), tree)
-    F, h, fdist = sdbs_features(P, N, p["k"], p["feature_scale"], nn=(gd, gi))[:3]
+    gd, gi = _knn32(P, min(n, max(k, GRAPH_K)), tree)
+    F, h, fdist = sdbs_features(P, N, k, feature_scale, nn=(gd, gi))[:3]
     # length unit of the radius: h^(1-β) h_i^β with h_i the local spacing
     # (mean distance to the 6 nearest neighbours) and β = density_adapt
     local = np.maximum(fdist[:, 1:7].mean(axis=1, dtype=np.float64), 1e-3 * h)
-    unit = h * (local / h) ** p["density_adapt"]
+    unit = h * (local / h) ** density_adapt
     del fdist, local
     log.info("simplify_sdbs: features of %d points, h = %.4g", n, h)
-    score, nnz, res = saliency_scores(F, n_atoms=p["n_atoms"], alpha=p["alpha"],
-                                      max_iter=p["max_iter"], max_train=p["max_train"],
-                                      seed=p["seed"])
+    score, nnz, res = saliency_scores(F, n_atoms=n_atoms, alpha=alpha,
+                                      max_iter=max_iter, max_train=max_train,
+                                      seed=seed)
     del F
-    inv = 1.0 / np.maximum(score, p["sf_floor"])
-    d0 = p["delta"] if target is None else _delta_guess(target, n, inv)
+    inv = 1.0 / np.maximum(score, sf_floor)
+    d0 = delta if target is None else _delta_guess(target, n, inv)
     log.info("simplify_sdbs: saliency done; first delta %.4g h", d0)
 
     def run(dl):
@@ -451,7 +431,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
         keep = np.ones(n, dtype=bool)
         d_use, n_greedy = 0.0, n
     elif target is None:
-        d_use = p["delta"]
+        d_use = delta
         keep = run(d_use)
         n_greedy = int(keep.sum())
     else:
@@ -459,9 +439,22 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
         n_greedy = int(keep.sum())
         keep = _make_exact(keep, score, target)
     keep_idx = np.flatnonzero(keep).astype(np.int64)
-    log.info("simplify_sdbs: kept %d of %d points (delta = %.4g h)", len(keep_idx), n, d_use)
-    return SimplifyResult(keep_idx=keep_idx, score=score, delta=float(d_use), h=h, nnz=nnz,
-                          residual=res, n_greedy=n_greedy)
+    log.info("simplify_sdbs: kept %d of %d points (delta = %.4g h)", len(keep_idx), n,
+             d_use)
+    return SimplifyResult(keep_idx=keep_idx, score=score, delta=float(d_use), h=h,
+                          nnz=nnz, residual=res, n_greedy=n_greedy)
+
+
+def _target(ratio, count, n: int, func: str) -> int | None:
+    """The number of points to keep, or None when δ is given."""
+    if count is not None:
+        if count > n:
+            raise InvalidParameterError(f"{func}: count must be in [1, {n}] (the number "
+                                        f"of points), got {count}")
+        return count
+    if ratio is not None:
+        return max(1, int(round(ratio * n)))
+    return None
 
 
 def _delta_guess(target: int, n: int, inv: np.ndarray) -> float:

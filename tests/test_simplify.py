@@ -4,13 +4,20 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from pcprep import InvalidParameterError, PointCloudError, simplify_sdbs
 from pcprep.baselines.datasets import make_shape
-from pcprep.filters import simplify as S
-from pcprep import InvalidParameterError, PointCloudError
+from pcprep.filters import simplify as S  # private steps: _knn32, _search_delta
 from pcprep.filters.metrics import simplification_error
 from pcprep.filters.neighbors import build_tree, knn
+from pcprep.filters.simplify import greedy_keep, sdbs_features
 
 FAST = dict(n_atoms=60, max_iter=3, max_train=3000)
+
+
+def _jaccard(a, b):
+    """|a ∩ b| / |a ∪ b|; 0 when both masks are empty, so two empty masks never agree."""
+    union = np.count_nonzero(a | b)
+    return np.count_nonzero(a & b) / union if union else 0.0
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +27,7 @@ def cube():
 
 @pytest.fixture(scope="module")
 def cube_result(cube):
-    return S.simplify_sdbs(cube.points, ratio=0.1, seed=0, **FAST)
+    return simplify_sdbs(cube.points, ratio=0.1, seed=0, **FAST)
 
 
 def test_creases_kept_denser_than_faces(cube, cube_result):
@@ -40,20 +47,20 @@ def test_count_ratio_honoured_and_subset(cube, cube_result):
     assert idx.dtype == np.int64 and np.all(np.diff(idx) > 0)
     assert idx[0] >= 0 and idx[-1] < n
     assert abs(cube_result.n_greedy - len(idx)) <= 0.01 * len(idx) + 1
-    res = S.simplify_sdbs(cube.points, count=777, seed=0, **FAST)
+    res = simplify_sdbs(cube.points, count=777, seed=0, **FAST)
     assert len(res.keep_idx) == 777
 
 
 def test_delta_direct(cube, cube_result):
-    res = S.simplify_sdbs(cube.points, delta=cube_result.delta, seed=0, **FAST)
+    res = simplify_sdbs(cube.points, delta=cube_result.delta, seed=0, **FAST)
     assert len(res.keep_idx) == res.n_greedy == cube_result.n_greedy
-    more = S.simplify_sdbs(cube.points, delta=0.5 * cube_result.delta, seed=0, **FAST)
+    more = simplify_sdbs(cube.points, delta=0.5 * cube_result.delta, seed=0, **FAST)
     assert len(more.keep_idx) > len(res.keep_idx)
 
 
 def test_deterministic_and_input_untouched(cube, cube_result):
     pts = cube.points.copy()
-    res = S.simplify_sdbs(pts, ratio=0.1, seed=0, **FAST)
+    res = simplify_sdbs(pts, ratio=0.1, seed=0, **FAST)
     np.testing.assert_array_equal(pts, cube.points)
     np.testing.assert_array_equal(res.keep_idx, cube_result.keep_idx)
     np.testing.assert_array_equal(res.score, cube_result.score)
@@ -62,7 +69,7 @@ def test_deterministic_and_input_untouched(cube, cube_result):
 def test_scale_and_rigid_motion_invariance(cube, cube_result):
     rot = Rotation.from_euler("xyz", [30, -50, 70], degrees=True).as_matrix()
     moved = 1000.0 * cube.points @ rot.T + np.array([1e5, -3e4, 2e3])
-    res = S.simplify_sdbs(moved, ratio=0.1, seed=0, **FAST)
+    res = simplify_sdbs(moved, ratio=0.1, seed=0, **FAST)
     a, b = set(res.keep_idx.tolist()), set(cube_result.keep_idx.tolist())
     # scores agree to rounding; the greedy cascade may flip a few choices
     np.testing.assert_allclose(res.score, cube_result.score, atol=1e-6)
@@ -101,14 +108,23 @@ def test_parallel_greedy_equals_sequential(seed, solver_path):
     score[:50] = score[50]  # ties are broken by index
     rho = 0.02 / np.maximum(score, 0.1)
     dist, idx = knn(P, 12)  # short lists: the exact ball fallback is exercised
-    got = S.greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho,
-                        tree=build_tree(P))
-    np.testing.assert_array_equal(got, _naive_greedy(P, score, rho))
+    got = greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho,
+                      tree=build_tree(P))
+    assert _jaccard(got, _naive_greedy(P, score, rho)) == 1.0
+
+
+def test_seed_policy(cube, cube_result):
+    """Randomness (K-SVD) is seeded by ``seed``, 0 by default; None draws fresh entropy."""
+    assert {p.name: p.default for p in simplify_sdbs.params}["seed"] == 0
+    again = simplify_sdbs(cube.points, ratio=0.1, **FAST)  # default seed
+    np.testing.assert_array_equal(again.keep_idx, cube_result.keep_idx)
+    fresh = simplify_sdbs(cube.points, ratio=0.1, seed=None, **FAST)
+    assert len(fresh.keep_idx) == len(cube_result.keep_idx)
 
 
 def test_bad_input(cube):
     pts = cube.points
-    f = S.simplify_sdbs
+    f = simplify_sdbs
     with pytest.raises(InvalidParameterError, match="exactly one"):
         f(pts)
     with pytest.raises(InvalidParameterError, match="exactly one"):
@@ -146,7 +162,7 @@ def test_density_adapt_follows_input_density():
         dense = ~dense  # the half with the smaller extent is the denser one
 
     def kept_ratio(beta):
-        res = S.simplify_sdbs(s.points, ratio=0.1, density_adapt=beta, seed=0, **FAST)
+        res = simplify_sdbs(s.points, ratio=0.1, density_adapt=beta, seed=0, **FAST)
         keep = np.zeros(len(x), dtype=bool)
         keep[res.keep_idx] = True
         return keep[dense].mean() / keep[~dense].mean()
@@ -162,7 +178,7 @@ def test_duplicated_points_rejected():
     rng = np.random.default_rng(0)
     P = np.repeat(rng.random((50, 3)), 20, axis=0)
     with pytest.raises(PointCloudError, match="duplicate point"):
-        S.simplify_sdbs(P, ratio=0.1)
+        simplify_sdbs(P, ratio=0.1)
 
 
 def test_greedy_long_balls_completed_lazily(solver_path):
@@ -173,23 +189,23 @@ def test_greedy_long_balls_completed_lazily(solver_path):
     score = rng.random(1200)
     rho = 0.06 / np.maximum(score, 0.2)
     dist, idx = knn(P, 5)
-    got = S.greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho)
-    np.testing.assert_array_equal(got, _naive_greedy(P, score, rho))
+    got = greedy_keep(P, dist.astype(np.float32), idx.astype(np.int32), score, rho)
+    assert _jaccard(got, _naive_greedy(P, score, rho)) == 1.0
 
 
 def test_features_from_shared_knn_lists(cube):
     """The single float32 k-NN query gives the same features as a fresh query."""
     P = cube.points - cube.points.mean(axis=0)
-    F0, h0 = S.sdbs_features(P, None, 16, "balanced")[:2]
+    F0, h0 = sdbs_features(P, None, 16, "balanced")[:2]
     gd, gi = S._knn32(P, 32, build_tree(P))
-    F1, h1 = S.sdbs_features(P, None, 16, "balanced", nn=(gd, gi))[:2]
+    F1, h1 = sdbs_features(P, None, 16, "balanced", nn=(gd, gi))[:2]
     assert abs(h1 - h0) <= 1e-6 * h0
     np.testing.assert_allclose(F1, F0, atol=1e-4)
 
 
 @pytest.mark.parametrize("name,ratio", [("fandisk", 0.05), ("sphere", 0.2),
                                         ("block", 0.5)])
-def test_delta_search_hits_count(name, ratio):
+def test_delta_search_hits_count(name, ratio, monkeypatch):
     """The δ search ends within 1 % of the target in a few greedy runs."""
     s = make_shape(name, n=8000, seed=1)
     calls = []
@@ -201,11 +217,8 @@ def test_delta_search_hits_count(name, ratio):
             return run(dl)
         return orig(counted, target, d, max_eval)
 
-    S._search_delta = spy
-    try:
-        res = S.simplify_sdbs(s.points, ratio=ratio, seed=0, **FAST)
-    finally:
-        S._search_delta = orig
+    monkeypatch.setattr(S, "_search_delta", spy)
+    res = simplify_sdbs(s.points, ratio=ratio, seed=0, **FAST)
     target = round(ratio * len(s.points))
     assert len(res.keep_idx) == target
     assert abs(res.n_greedy - target) <= max(1, int(0.01 * target))
