@@ -1,26 +1,30 @@
 """
 apply.py
 --------
-Run a registered pcprep filter on a ``pymeshlab.MeshSet``, leaving results
-where MeshLab users expect them:
+Run a registered pcprep filter on the current layer of a ``pymeshlab.MeshSet``,
+leaving results where MeshLab users expect them.  The layer keeps its id, its
+label and its place in the layer list, and every attribute it carries:
 
-* ``coord``      positions and normals replaced in the current layer; the
-                 filter's mask (e.g. denoising's edge points) becomes the vertex
-                 selection and the vertex quality (1/0).
-* ``scalar``     the per-point value in [0, 1] becomes vertex quality, coloured
-                 with MeshLab's red-green-blue quality ramp.
-* ``selection``  detections become the vertex selection and quality 1/0; the
-                 continuous score is added as the custom vertex attribute
-                 named after the result field (e.g. ``"score"``).
-* ``new_layer``  the kept input points (every attribute carried) form a new
-                 layer that becomes current, as pymeshlab's
+* ``coord``      positions and normals are replaced in place; the filter's mask
+                 (denoising's edge points) becomes the vertex selection, the
+                 vertex quality (1/0) and the custom attribute ``spec.attribute``.
+* ``scalar``     the per-point value becomes the vertex quality, coloured with
+                 MeshLab's quality ramp, and the custom attribute ``spec.attribute``.
+* ``selection``  detections become the vertex selection, the quality (1/0) and the
+                 attribute ``spec.attribute``; the continuous score is the
+                 attribute ``<attribute>_score``.
+* ``new_layer``  the kept input points form a new layer (a copy of the current
+                 one with the other vertices removed, so every attribute is
+                 carried) that becomes current, as pymeshlab's
                  ``generate_simplified_point_cloud`` does.
 
-pymeshlab has no in-place setter for vertex positions, so a ``coord`` filter
-replaces the current layer by a new one with the same label; its id changes
-and is returned as ``"mesh_id"``.  MeshLab's selection filters read the vertex
-quality, which is why selection filters also write the mask there; a previous
-quality is kept as the custom attribute ``"quality_before"``.
+A quality the layer had before is kept as the custom attribute
+``quality_before``.  pymeshlab offers no setter for vertex positions, so they
+are written through MeshLab's own filters: a temporary layer at the same
+positions carries each new coordinate as its quality, ``transfer_attributes_per_vertex``
+copies it onto the layer (every vertex matches itself, at distance 0) and
+``compute_coord_by_function`` / ``compute_normal_by_function_per_vertex`` move
+it into place; the values are doubles throughout, so the result is bit-exact.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 from pcprep.filters._validation import PointCloudError, as_points
 
 from . import registry
-from .convert import Cloud, MissingAttributeError, cloud_to_mesh, meshset_to_cloud
+from .convert import Cloud, MissingAttributeError, meshset_to_cloud  # noqa: F401
 
 
 def filter_list() -> list[str]:
@@ -135,56 +139,159 @@ def _with_mask_quality(cloud: Cloud, mask) -> Cloud:
     return _keep_quality(cloud).with_(quality=mask.astype(np.float64))
 
 
-def apply_filter(ms, name: str, **params) -> dict:
+def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dict:
     """Apply the pcprep filter ``name`` (registry name or CLI command) to the
     current layer of ``ms``.
 
     Returns a dict of named outputs, as pymeshlab's ``apply_filter`` does:
-    ``"mesh_id"`` (the layer holding the result), the resolved parameters
-    (``"params"``), and per kind ``"selected"`` (count) or ``"kept"`` (count).
-    The function's full result object is under ``"result"``.
+    ``"mesh_id"`` (the layer holding the result: the same layer, or the new one
+    for ``new_layer`` filters), the resolved parameters (``"params"``), and per
+    kind ``"selected"`` (count) or ``"kept"`` (count).  The function's full
+    result object is under ``"result"``; the names of the custom attributes it
+    added are under ``"attributes"``.  ``carry`` names custom attributes of the
+    layer that a ``new_layer`` filter copies to its kept rows (pymeshlab cannot
+    list a layer's custom attributes, and MeshLab's layer copy drops them;
+    ``pcprep.MeshSet`` passes the ones it knows).
     """
     spec = registry.get(name)
-    attrs = tuple(params.pop("_attributes", ()))
-    cloud = meshset_to_cloud(ms, attrs)
+    resolved = spec.resolve(params)  # parameter errors before touching the layer
+    cloud = meshset_to_cloud(ms)
     result = run_on_cloud(spec, cloud, params)
-    out_cloud = result_cloud(spec, cloud, result)
-    label = ms.current_mesh().label()
-    outputs = {"result": result, "params": spec.resolve(params)}
-    if spec.kind in ("coord", "scalar", "selection"):
-        old_id = ms.current_mesh_id()
-        _add_layer(ms, out_cloud, label, select=spec.mask_field is not None,
-                   ramp=spec.kind == "scalar")
-        new_id = ms.current_mesh_id()
-        ms.set_current_mesh(old_id)
-        ms.delete_current_mesh()
-        ms.set_current_mesh(new_id)
-        ms.current_mesh().set_label(label)  # MeshLab suffixed it while both existed
-        outputs["mesh_id"] = new_id
-        if spec.mask_field:
-            outputs["selected"] = int(np.count_nonzero(getattr(result, spec.mask_field)))
-    elif spec.kind == "new_layer":
-        _add_layer(ms, out_cloud, f"{label} ({spec.command})", select=False, ramp=False)
-        outputs["mesh_id"] = ms.current_mesh_id()
-        outputs["kept"] = len(out_cloud)
+    out = result_cloud(spec, cloud, result)
+    outputs = {"result": result, "params": resolved}
+    layer = ms.current_mesh_id()
+    if spec.kind == "new_layer":
+        idx = np.asarray(getattr(result, spec.index_field), dtype=np.int64)
+        source = ms.current_mesh()
+        kept = {k: np.array(source.vertex_custom_scalar_attribute_array(k))[idx]
+                for k in carry if _has_attribute(source, k)}
+        _subset_layer(ms, layer, idx, f"{source.label()} ({spec.command})")
+        mesh = ms.current_mesh()
+        for key, values in kept.items():
+            if not _has_attribute(mesh, key):
+                _add_attribute(mesh, key, values)
+        outputs.update(mesh_id=ms.current_mesh_id(), kept=len(idx), attributes=[])
+        return outputs
+    if spec.kind == "coord":
+        _set_positions(ms, layer, out.points, out.normals)
+    if out.quality is not None:
+        _set_quality(ms, layer, out.quality)
+    if spec.mask_field:
+        _select(ms, np.asarray(getattr(result, spec.mask_field), dtype=bool))
+        outputs["selected"] = int(np.count_nonzero(getattr(result, spec.mask_field)))
+    if spec.kind == "scalar":
+        _call(ms, "compute_color_from_scalar_per_vertex", minval=0.0, maxval=1.0)
+    # custom attributes last: MeshLab's expression filters must not meet
+    # attributes added from Python (some of them crash on those)
+    mesh = ms.current_mesh()
+    outputs["attributes"] = []
+    for key, values in out.attributes.items():
+        if key not in cloud.attributes:
+            free = _free_name(mesh, key)
+            _add_attribute(mesh, free, np.asarray(values))
+            outputs["attributes"].append(free)
+    outputs["mesh_id"] = layer
     return outputs
 
 
-def _add_layer(ms, cloud: Cloud, label: str, *, select: bool, ramp: bool) -> None:
-    """Add ``cloud`` as a new current layer.  Custom attributes are attached
-    after MeshLab's expression/selection filters have run, because
-    Python-added attributes make those filters crash (BASELINES.md §0.7)."""
-    attrs = cloud.attributes
-    ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={})), label, set_as_current=True)
-    if select:
-        # the bounds are clamped to the quality range, so an all-zero mask
-        # would select everything: clear the selection explicitly instead
-        if cloud.quality is not None and (cloud.quality > 0.5).any():
-            ms.compute_selection_by_scalar_per_vertex(minq=0.5, maxq=1.5)
-        else:
-            ms.set_selection_none()
-    if ramp:
-        ms.compute_color_from_scalar_per_vertex(minval=0.0, maxval=1.0)
-    mesh = ms.current_mesh()
-    for key, values in attrs.items():
-        mesh.add_vertex_custom_scalar_attribute(np.ascontiguousarray(values, np.float64), key)
+def _call(ms, name: str, **params):
+    """A MeshLab filter, bypassing ``pcprep.MeshSet``'s recording."""
+    import pymeshlab
+
+    return pymeshlab.MeshSet.apply_filter(ms, name, **params)
+
+
+def _carrier(ms, layer: int, values: np.ndarray) -> None:
+    """Copy ``values`` into the quality of layer ``layer`` (see the module notes)."""
+    import pymeshlab
+
+    pts = np.array(ms.mesh(layer).vertex_matrix())
+    # every vertex finds itself at distance 0; the bound only has to be a
+    # positive number whose square does not underflow
+    bound = 1e-9 * max(float(np.ptp(pts, axis=0).max()), 1e-100)
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=pts, v_scalar_array=np.ascontiguousarray(
+        values, dtype=np.float64)), "pcprep-carrier", set_as_current=True)
+    carrier = ms.current_mesh_id()
+    ms.set_current_mesh(layer)
+    try:
+        _call(ms, "transfer_attributes_per_vertex", sourcemesh=carrier, targetmesh=layer,
+              vertexsampling=True, colortransfer=False, qualitytransfer=True,
+              upperbound=pymeshlab.PureValue(bound))
+    finally:
+        ms.set_current_mesh(carrier)
+        ms.delete_current_mesh()
+        ms.set_current_mesh(layer)
+
+
+def _set_quality(ms, layer: int, values: np.ndarray) -> None:
+    _carrier(ms, layer, values)
+
+
+def _set_positions(ms, layer: int, points: np.ndarray, normals: np.ndarray | None) -> None:
+    for j, c in enumerate("xyz"):
+        _carrier(ms, layer, points[:, j])
+        _call(ms, "compute_coord_by_function", **{k: ("q" if k == c else k) for k in "xyz"})
+    if normals is not None:
+        for j, c in enumerate("xyz"):
+            _carrier(ms, layer, normals[:, j])
+            _call(ms, "compute_normal_by_function_per_vertex",
+                  **{k: ("q" if k == c else "n" + k) for k in "xyz"})
+
+
+def _select(ms, mask: np.ndarray) -> None:
+    """Vertex selection = ``mask`` (the quality holds the mask as 1/0 here)."""
+    if mask.any():
+        _call(ms, "compute_selection_by_scalar_per_vertex", minq=0.5, maxq=1.5)
+    else:  # the bounds are clamped to the quality range: 0/0 would select all
+        _call(ms, "set_selection_none")
+
+
+def _subset_layer(ms, layer: int, idx: np.ndarray, label: str) -> None:
+    """A new current layer holding rows ``idx`` of ``layer`` with every
+    attribute: a copy of the layer minus the other vertices (order kept)."""
+    n = ms.mesh(layer).vertex_number()
+    mask = np.ones(n, dtype=bool)
+    mask[idx] = False
+    if not np.all(np.diff(idx) > 0):
+        raise PointCloudError("internal: kept indices must be increasing")
+    _call(ms, "generate_copy_of_current_mesh")
+    copy = ms.current_mesh_id()
+    had_quality = ms.current_mesh().has_vertex_scalar()
+    quality = np.array(ms.current_mesh().vertex_scalar_array()) if had_quality else None
+    _carrier(ms, copy, mask.astype(np.float64))
+    _select(ms, mask)
+    if mask.any():
+        _call(ms, "meshing_remove_selected_vertices")
+    if quality is not None:
+        _carrier(ms, copy, quality[idx])
+    ms.current_mesh().set_label(label)
+
+
+def _has_attribute(mesh, name: str) -> bool:
+    for getter in (mesh.vertex_custom_scalar_attribute_array,
+                   mesh.vertex_custom_point_attribute_matrix):
+        try:
+            getter(name)
+            return True
+        except Exception:  # pymeshlab raises its own type for a missing attribute
+            pass
+    return False
+
+
+def _free_name(mesh, name: str) -> str:
+    """``name``, or ``name_2``, ``name_3``, … if the layer has it already."""
+    key, k = name, 1
+    while _has_attribute(mesh, key):
+        k += 1
+        key = f"{name}_{k}"
+    return key
+
+
+def _add_attribute(mesh, key: str, values: np.ndarray) -> None:
+    from .convert import _scalar_columns
+
+    if values.ndim == 2 and values.shape[1] == 3:
+        mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), key)
+        return
+    for name, col in _scalar_columns(key, values):
+        mesh.add_vertex_custom_scalar_attribute(col, name)

@@ -79,6 +79,16 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="point count, spacing h, bounding box, attributes")
     info.add_argument("input")
     sub.add_parser("filters", help="list the filters and their parameters")
+    run = sub.add_parser("run", help="run a MeshLab filter script (.mlx) that may mix "
+                                     "MeshLab's and pcprep's filters")
+    run.add_argument("script", help="the .mlx filter script")
+    run.add_argument("input", help="input file")
+    run.add_argument("output", help="output file (the current layer at the end)")
+    run.add_argument("--save-mlx", default=None, metavar="PATH",
+                     help="also write the pipeline that ran, as .mlx")
+    run.add_argument("--drop-nonfinite", action="store_true",
+                     help="drop rows whose coordinates hold NaN or Inf (indices reported)")
+    run.add_argument("--quiet", action="store_true", help="no progress messages")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
     for command in _plugin_commands():
@@ -167,6 +177,26 @@ def _cmd_filter(args) -> None:
     log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
 
 
+def _cmd_run(args) -> None:
+    from . import formats
+    from .meshset import MeshSet
+
+    ms = MeshSet()
+    ms.load_filter_script(args.script)  # every step checked before anything runs
+    formats.check_destination(args.output)
+    if args.save_mlx:
+        formats.check_destination(args.save_mlx + ".ply")  # its folder is writable
+    cloud = load_cloud(args.input, nonfinite="drop" if args.drop_nonfinite else "error")
+    formats.check_cloud(cloud, args.output)
+    ms.add_cloud(cloud)
+    ms.apply_filter_script()
+    out = ms.current_cloud()
+    save_cloud(out, args.output)
+    if args.save_mlx:
+        ms.save_filter_script(args.save_mlx)
+    log.info("run: %d steps, wrote %d points to %s", len(ms._loaded), len(out), args.output)
+
+
 def _plugin_commands() -> list:
     """Sub-commands contributed by other layers through the ``pcprep.commands``
     entry-point group (``bench`` and ``report`` come from ``pcprep.baselines``),
@@ -190,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
             _cmd_info(args.input)
         elif args.command == "filters":
             _cmd_filters()
+        elif args.command == "run":
+            _cmd_run(args)
         elif hasattr(args, "_run"):
             args._run(args)
         else:

@@ -54,7 +54,9 @@ def mesh_to_cloud(mesh, attributes: tuple[str, ...] = ()) -> Cloud:
 
 
 def cloud_to_mesh(cloud: Cloud):
-    """Build a ``pymeshlab.Mesh`` from a ``Cloud`` (every attribute kept)."""
+    """Build a ``pymeshlab.Mesh`` from a ``Cloud`` (every attribute kept).  To
+    put it in a MeshSet that will run expression filters, use
+    ``add_cloud_layer`` instead (see there)."""
     import pymeshlab
 
     kwargs = {"vertex_matrix": np.ascontiguousarray(cloud.points, dtype=np.float64)}
@@ -83,6 +85,25 @@ def _scalar_columns(name: str, values: np.ndarray):
         return [(name, np.ascontiguousarray(values, dtype=np.float64))]
     return [(f"{name}_{k}", np.ascontiguousarray(values[:, k], dtype=np.float64))
             for k in range(values.shape[1])]
+
+
+def add_cloud_layer(ms, cloud: Cloud, label: str = "") -> int:
+    """Add ``cloud`` to ``ms`` as a new current layer and return its id.
+
+    Custom attributes are attached after the layer is in the MeshSet: a layer
+    made from a ``Mesh`` that already carried Python-added attributes crashes
+    MeshLab's expression filters (``compute_coord_by_function`` and the like).
+    """
+    ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={})), label or cloud.label or "cloud")
+    mesh = ms.current_mesh()
+    for name, values in cloud.attributes.items():
+        values = np.asarray(values)
+        if values.ndim == 2 and values.shape[1] == 3:
+            mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
+        else:
+            for key, col in _scalar_columns(name, values):
+                mesh.add_vertex_custom_scalar_attribute(col, key)
+    return ms.current_mesh_id()
 
 
 def meshset_to_cloud(ms, attributes: tuple[str, ...] = ()) -> Cloud:

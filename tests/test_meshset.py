@@ -1,0 +1,161 @@
+"""pcprep.MeshSet: pcprep filters as MeshSet methods beside MeshLab's, layers that
+keep their id and place, and .mlx scripts that mix both kinds of filters."""
+
+import numpy as np
+import pymeshlab
+import pytest
+
+import pcprep
+from pcprep import InvalidParameterError
+from pcprep.baselines.datasets import make_shape
+from pcprep.meshlab_bridge.cli import main
+from pcprep.meshlab_bridge.convert import Cloud, load_cloud, save_cloud
+
+
+@pytest.fixture(scope="module")
+def part():
+    return make_shape("fandisk", n=3000, seed=0)
+
+
+def _meshset(part):
+    ms = pcprep.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=part.points[:50] + 10.0), "first")
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=part.points, v_normals_matrix=part.normals),
+                "scan")
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=part.points[:40] - 10.0), "last")
+    ms.set_current_mesh(1)
+    return ms
+
+
+def _layers(ms):
+    return [(i, ms.mesh(i).label()) for i in range(20) if ms.mesh_id_exists(i)]
+
+
+@pytest.mark.parametrize("method, kw", [
+    ("apply_coord_denoise_l1_tv", {"n_iter": 1}),
+    ("compute_scalar_saliency_sparse_mdl", {}),
+    ("compute_selection_sharp_features_sparse", {}),
+    ("compute_selection_hole_boundaries_sparse", {}),
+])
+def test_per_point_filters_keep_the_layer_id_label_and_place(part, method, kw):
+    ms = _meshset(part)
+    before = _layers(ms)
+    out = getattr(ms, method)(**kw)
+    assert ms.current_mesh_id() == 1 and out["mesh_id"] == 1
+    assert _layers(ms) == before
+    ms.set_current_mesh(0)  # the layer list is intact: other ids still work
+    assert ms.current_mesh().vertex_number() == 50
+    ms.set_current_mesh(1)
+    assert ms.current_mesh().vertex_number() == len(part.points)
+
+
+def test_coord_filter_writes_positions_and_normals_bit_exactly(part):
+    ms = _meshset(part)
+    ref = pcprep.denoise_l1_tv(part.points, part.normals, n_iter=1)
+    ms.apply_coord_denoise_l1_tv(n_iter=1)
+    m = ms.current_mesh()
+    assert np.array_equal(m.vertex_matrix(), ref.points)
+    assert np.array_equal(m.vertex_normal_matrix(), ref.normals)
+    assert m.selected_vertex_number() == int(ref.edge_mask.sum())
+
+
+def test_native_filters_and_queries_cover_both_kinds(part):
+    ms = _meshset(part)
+    ms.compute_normal_for_point_clouds(k=12)  # a MeshLab filter on the same object
+    names = ms.filter_list()
+    assert "compute_normal_for_point_clouds" in names
+    assert "generate_simplified_point_cloud_sdbs" in names
+    assert ms.filter_parameter_values("generate_simplified_point_cloud_sdbs")["k"] == 16
+    assert "k" in ms.filter_parameter_values("compute_normal_for_point_clouds")
+    out = ms.generate_simplified_point_cloud_sdbs(ratio=0.2)
+    assert ms.current_mesh_id() == out["mesh_id"] and ms.mesh_number() == 4
+    assert ms.current_mesh().vertex_number() == out["kept"] == 600
+    assert ms.mesh(1).vertex_number() == len(part.points)  # the source layer stays
+
+
+def test_previous_quality_and_attributes_are_kept(part):
+    ms = pcprep.MeshSet()
+    q = np.linspace(0, 1, len(part.points))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=part.points, v_scalar_array=q), "scan")
+    ms.current_mesh().add_vertex_custom_scalar_attribute(np.arange(len(q), dtype=float), "tag")
+    ms.compute_scalar_saliency_sparse_mdl()
+    m = ms.current_mesh()
+    assert np.array_equal(m.vertex_custom_scalar_attribute_array("quality_before"), q)
+    assert np.array_equal(m.vertex_custom_scalar_attribute_array("tag"), np.arange(len(q)))
+    ms.compute_scalar_saliency_sparse_mdl()  # again: nothing overwritten
+    assert np.array_equal(m.vertex_custom_scalar_attribute_array("quality_before"), q)
+    assert ms.current_mesh().vertex_custom_scalar_attribute_array("quality_before_2").max() <= 1
+
+
+_SCRIPT = """<!DOCTYPE FilterScript>
+<FilterScript>
+ <filter name="apply_coord_denoise_l1_tv">
+  <Param name="n_iter" value="1" type="RichInt"/>
+ </filter>
+ <filter name="Compute normals for point sets">
+  <Param name="K" value="12" type="RichInt"/>
+  <Param name="smoothIter" value="0" type="RichInt"/>
+  <Param name="flipFlag" value="false" type="RichBool"/>
+  <Param name="viewPos" x="0" y="0" z="0" type="RichPosition"/>
+ </filter>
+ <filter name="generate_simplified_point_cloud_sdbs">
+  <Param name="ratio" value="{ratio}" type="RichFloat"/>
+ </filter>
+</FilterScript>
+"""
+
+
+def test_a_script_mixing_both_kinds_equals_the_steps_one_by_one(part, tmp_path):
+    path = tmp_path / "p.mlx"
+    path.write_text(_SCRIPT.format(ratio=0.25))
+    scripted = _meshset(part)
+    scripted.load_filter_script(str(path))
+    scripted.apply_filter_script()
+    by_hand = _meshset(part)
+    by_hand.apply_coord_denoise_l1_tv(n_iter=1)
+    by_hand.compute_normal_for_point_clouds(k=12, smoothiter=0)
+    by_hand.generate_simplified_point_cloud_sdbs(ratio=0.25)
+    assert np.array_equal(scripted.current_mesh().vertex_matrix(),
+                          by_hand.current_mesh().vertex_matrix())
+    assert np.array_equal(scripted.current_mesh().vertex_normal_matrix(),
+                          by_hand.current_mesh().vertex_normal_matrix())
+    # the recorded pipeline, saved and replayed, gives the same answer again
+    saved = tmp_path / "saved.mlx"
+    scripted.save_filter_script(str(saved))
+    text = saved.read_text()
+    assert text.count("<filter") == 3 and "Compute normals for point sets" in text
+    replay = _meshset(part)
+    replay.load_filter_script(str(saved))
+    replay.apply_filter_script()
+    assert np.array_equal(replay.current_mesh().vertex_matrix(),
+                          by_hand.current_mesh().vertex_matrix())
+
+
+@pytest.mark.parametrize("bad, match", [
+    (_SCRIPT.format(ratio=7.0), "ratio"),
+    (_SCRIPT.format(ratio=0.2).replace("Compute normals for point sets", "No such filter"),
+     "No such filter"),
+    ("<notascript/>", "not a MeshLab filter script"),
+])
+def test_scripts_are_checked_before_the_first_step_runs(part, tmp_path, bad, match):
+    path = tmp_path / "bad.mlx"
+    path.write_text(bad)
+    ms = _meshset(part)
+    with pytest.raises(InvalidParameterError, match=match):
+        ms.load_filter_script(str(path))
+    assert np.array_equal(ms.current_mesh().vertex_matrix(), part.points)
+
+
+def test_cli_run_keeps_attributes_and_saves_the_pipeline(part, tmp_path):
+    src = tmp_path / "in.ply"
+    tag = np.arange(len(part.points), dtype=np.uint16)
+    save_cloud(Cloud(part.points, part.normals, attributes={"tag": tag}), str(src))
+    (tmp_path / "p.mlx").write_text(_SCRIPT.format(ratio=0.5))
+    out, mlx = tmp_path / "out.ply", tmp_path / "ran.mlx"
+    assert main(["run", str(tmp_path / "p.mlx"), str(src), str(out), "--save-mlx", str(mlx),
+                 "--quiet"]) == 0
+    got = load_cloud(str(out))
+    assert len(got) == len(part.points) // 2
+    assert got.attributes["tag"].dtype == np.uint16
+    assert len(np.unique(got.attributes["tag"])) == len(got)
+    assert mlx.read_text().count("<filter") == 3
