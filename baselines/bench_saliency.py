@@ -22,8 +22,9 @@ magnitude √(k1²+k2²) of the same radius-3h quadric fit the filter uses; |K|;
 the SDBS global score Sf of chapter 6 (``pcprep.filters.simplify.simplify_sdbs(...).score``)
 when that module is importable.
 
-``run`` writes reports/saliency.md/.json and reports/img/saliency_*.png;
-``run_speed`` writes reports/speed_saliency.md/.json.
+``run`` writes reports/saliency.md, reports/saliency.json and
+reports/img/saliency_*.png; ``run_speed`` writes reports/speed_saliency.md and
+reports/speed_saliency.json.
 """
 
 from __future__ import annotations

@@ -159,7 +159,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                 log.info("bench simplify: %s %g%% %s %s", label, 100 * rate, m,
                          {k: v for k, v in recs[m].items() if k != "outcome"})
             cases.append(dict(model=label, n=n, rate=rate, count=count, methods=recs))
-    # feature-scaling ablation (ALGORITHMS.md §Ch.6 item 2) at 10 %
+    # feature-scaling ablation (docs/decisions/simplify.md, "Feature scaling") at 10 %
     ablation = []
     for label, kind, name in (models if not quick else models[:1]):
         P = load_model(kind, name)
@@ -284,7 +284,7 @@ def _markdown(data) -> str:
                   f"{miss[3]:.4g} ({miss[4]:.2f}×)")
     md.append("")
     if data["ablation"]:
-        md += ["## Feature scaling (ALGORITHMS.md §Ch.6 item 2), 10 %", "",
+        md += ["## Feature scaling (docs/decisions/simplify.md), 10 %", "",
                "SDBS with balanced columns (default) vs the thesis' raw F = (n, σ, p) "
                "(positions / bbox diagonal).", ""]
         rows = []

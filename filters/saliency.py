@@ -302,8 +302,8 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     result does not depend on the model's units ("Descriptor"); the residual counts
     the normal block by its Euclidean length, for rotation invariance ("Residual
     norm"); the default measure drops ‖α‖₀, which is higher on flat regions than on
-    features ("Measure"); the default 10 % quantile keeps the score on the feature
-    where the mean spreads it about r wider ("Accumulation"); r is a fixed multiple
+    features ("Measure"); the default 10 % quantile narrows the plateau of high S_T
+    around a feature, which the mean widens ("Accumulation"); r is a fixed multiple
     of h, not Mitra & Nguyen's adaptive radius ("Radius"); the Lasso is solved by
     batched coordinate descent, stopped after 32 sweeps ("Lasso solver").  The
     thesis' form: ``measure="mdl", accumulation="mean"``.  Deterministic.
