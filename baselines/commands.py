@@ -90,3 +90,40 @@ def add_report(sub) -> None:
     rep.add_argument("--seed", type=int, default=0)
     rep.add_argument("--quiet", action="store_true")
     rep.set_defaults(_run=_run_report)
+
+
+def _run_sample(args) -> None:
+    import numpy as np
+
+    from pcprep.meshlab_bridge import formats
+    from pcprep.meshlab_bridge.cloud import Cloud
+
+    from .datasets import SHAPES, add_noise, make_shape
+
+    if args.shape not in SHAPES:
+        raise InvalidParameterError(f"sample: shape must be one of {', '.join(SHAPES)}, "
+                                    f"got {args.shape!r}")
+    formats.check_destination(args.output, needs=("normal",))
+    s = make_shape(args.shape, n=args.n, seed=args.seed)
+    pts = s.points
+    if args.noise > 0:
+        pts = add_noise(s.points, s.normals, sigma=args.noise, h=s.h, kind="normal",
+                        seed=args.seed)
+    attrs = {"sharp_truth": s.sharp.astype(np.uint8), "rim_truth": s.rim.astype(np.uint8)}
+    formats.write_cloud(Cloud(np.asarray(pts, np.float64), s.normals, attributes=attrs),
+                        args.output)
+
+
+def add_sample(sub) -> None:
+    """``pcprep sample SHAPE OUT``: a generated test cloud with its ground truth."""
+    p = sub.add_parser("sample", help="write a generated CAD-like test cloud (with its "
+                                      "sharp-edge and border truth as attributes)")
+    p.add_argument("shape", help="cube, octahedron, block, star, fandisk, sphere, plane, "
+                                 "bumpy_plane or disc")
+    p.add_argument("output", help="output file (.ply, .las, .laz, .pcd, .xyz)")
+    p.add_argument("--n", type=int, default=20000, help="number of points (default 20000)")
+    p.add_argument("--noise", type=float, default=0.0,
+                   help="Gaussian noise along the normals, in units of h (default 0)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(_run=_run_sample)

@@ -68,8 +68,11 @@ def as_normals(normals, n: int, *, func: str, name: str = "normals") -> np.ndarr
         raise PointCloudError(f"{func}: {name} has {arr.shape[0]} rows but there are {n} points")
     length = np.linalg.norm(arr, axis=1)
     if (length < 1e-12).any():
+        rows = np.flatnonzero(length < 1e-12)
+        shown = ", ".join(map(str, rows[:5])) + (", …" if len(rows) > 5 else "")
         raise PointCloudError(
-            f"{func}: {name} has {int((length < 1e-12).sum())} zero-length row(s)"
+            f"{func}: {name} has {len(rows)} zero-length row(s) (rows {shown}); give those "
+            "rows a normal, or pass no normals to have them estimated"
         )
     arr /= length[:, None]
     return arr

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 
 import numpy as np
@@ -46,10 +47,17 @@ def _bool(text: str) -> bool:
 def _add_filter_command(sub, spec) -> None:
     first = spec.description.split(". ")[0].rstrip(".") + "."
     p = sub.add_parser(spec.command, help=spec.label, description=f"{spec.label}. {first}")
-    p.add_argument("input", help="input file: PLY, LAS, LAZ, PCD, E57, XYZ, OBJ, OFF (or "
-                                 "another format pymeshlab reads)")
-    p.add_argument("output", help="output file: PLY, LAS, LAZ or PCD keep every attribute; "
-                                  "XYZ, OBJ, OFF and E57 only some")
+    p.add_argument("paths", nargs="+", metavar="PATH",
+                   help="IN OUT, or several inputs with --out-dir.  Inputs: PLY, LAS, LAZ, "
+                        "PCD, E57, XYZ, OBJ, OFF (or another format pymeshlab reads); outputs: "
+                        "PLY, LAS, LAZ or PCD keep every attribute, XYZ, OBJ, OFF and E57 "
+                        "only some")
+    p.add_argument("--out-dir", default=None, metavar="DIR",
+                   help="write each input's result to DIR under the input's name; a file "
+                        "that fails is reported and the others go on")
+    p.add_argument("--format", default=None, metavar="EXT",
+                   help="with --out-dir: the output format (e.g. ply, laz); default: the "
+                        "input's")
     for prm in spec.params:
         kind = _bool if prm.kind is bool else prm.kind
         unit = f" [{registry.UNITS[prm.unit]}]" if prm.unit else ""
@@ -63,6 +71,9 @@ def _add_filter_command(sub, spec) -> None:
     p.add_argument("--drop-nonfinite", action="store_true",
                    help="drop rows whose coordinates hold NaN or Inf (their indices are "
                         "reported) instead of refusing the file")
+    p.add_argument("--save-mlx", default=None, metavar="PATH",
+                   help="also write this step as a MeshLab filter script (.mlx) that "
+                        "pcprep run and pcprep.MeshSet replay")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(_spec=spec)
 
@@ -154,27 +165,84 @@ _NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
           "selection": ("quality", "attributes"), "new_layer": ()}
 
 
-def _cmd_filter(args) -> None:
+def _jobs(args) -> list[tuple[str, str]]:
+    """(input, output) pairs from ``IN OUT`` or ``IN... --out-dir DIR``."""
     from . import formats
-    from .apply import result_cloud, run_on_cloud
 
+    if args.out_dir is None:
+        if len(args.paths) != 2:
+            raise InvalidParameterError(
+                f"{args.command}: give IN OUT, or several inputs with --out-dir DIR "
+                f"(got {len(args.paths)} path(s))")
+        if args.format is not None:
+            raise InvalidParameterError(f"{args.command}: --format needs --out-dir")
+        return [(args.paths[0], args.paths[1])]
+    parent = os.path.dirname(os.path.abspath(args.out_dir))
+    if not os.path.isdir(args.out_dir):
+        if not os.path.isdir(parent):
+            raise PointCloudError(f"--out-dir {args.out_dir!r}: folder {parent!r} does not exist")
+        os.mkdir(args.out_dir)
+    jobs = []
+    for path in args.paths:
+        stem, ext = os.path.splitext(os.path.basename(path))
+        ext = "." + args.format.lstrip(".").lower() if args.format else ext
+        jobs.append((path, os.path.join(args.out_dir, stem + ext)))
+    outs = [o for _, o in jobs]
+    twice = sorted({o for o in outs if outs.count(o) > 1})
+    if twice:
+        raise InvalidParameterError(f"two inputs would write the same file: {', '.join(twice)}")
+    formats.check_destination(jobs[0][1])  # the folder and format, before any work
+    return jobs
+
+
+def _cmd_filter(args) -> int:
     spec = args._spec
     params = {p.name: getattr(args, p.name) for p in spec.params
               if getattr(args, p.name) is not None}
-    spec.resolve(params)  # parameter errors before reading the file
+    spec.resolve(params)  # parameter errors before reading any file
+    jobs = _jobs(args)
+    if args.save_mlx:
+        from .meshset import pcprep_step_script
+
+        pcprep_step_script(spec, spec.resolve(params), args.save_mlx)
+    if len(jobs) == 1 and args.out_dir is None:
+        _filter_file(spec, params, *jobs[0], args.drop_nonfinite)
+        return 0
+    failed = []
+    for src, dst in jobs:
+        try:
+            _filter_file(spec, params, src, dst, args.drop_nonfinite)
+        except (PointCloudError, InvalidParameterError, MissingAttributeError, OSError) as exc:
+            log.error("%s: failed: %s", src, exc)
+            failed.append((src, str(exc)))
+    done = len(jobs) - len(failed)
+    log.warning("%s: %d of %d file(s) done%s", spec.command, done, len(jobs),
+                "" if not failed else "; failed: " + ", ".join(src for src, _ in failed))
+    return 1 if failed else 0
+
+
+#: what each kind of filter needs the output format to store
+_NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
+          "selection": ("quality", "attributes"), "new_layer": ()}
+
+
+def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -> None:
+    from . import formats
+    from .apply import result_cloud, run_on_cloud
+
     needs = _NEEDS[spec.kind]
-    formats.check_destination(args.output, needs=needs)  # before any work
-    cloud = load_cloud(args.input, nonfinite="drop" if args.drop_nonfinite else "error")
+    formats.check_destination(dst, needs=needs)  # before any work
+    cloud = load_cloud(src, nonfinite="drop" if drop_nonfinite else "error")
     dropped = cloud.meta.get("dropped_rows", ())
     if len(dropped):
-        log.warning("%s: dropped %d row(s) with non-finite coordinates: %s", args.input,
+        log.warning("%s: dropped %d row(s) with non-finite coordinates: %s", src,
                     len(dropped), ", ".join(map(str, dropped)))
-    formats.check_cloud(cloud, args.output, needs=needs)
-    log.info("%s: %d points from %s", spec.command, len(cloud), args.input)
+    formats.check_cloud(cloud, dst, needs=needs)
+    log.info("%s: %d points from %s", spec.command, len(cloud), src)
     result = run_on_cloud(spec, cloud, params)
     out = result_cloud(spec, cloud, result)
-    save_cloud(out, args.output, require=needs, ramp=spec.kind == "scalar")
-    log.info("%s: wrote %d points to %s", spec.command, len(out), args.output)
+    save_cloud(out, dst, require=needs, ramp=spec.kind == "scalar")
+    log.info("%s: wrote %d points to %s", spec.command, len(out), dst)
 
 
 def _cmd_run(args) -> None:
@@ -225,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         elif hasattr(args, "_run"):
             args._run(args)
         else:
-            _cmd_filter(args)
+            return _cmd_filter(args)
     except (PointCloudError, InvalidParameterError, MissingAttributeError) as exc:
         sys.stderr.write(f"pcprep: error: {exc}\n")
         return 1

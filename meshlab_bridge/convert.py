@@ -31,16 +31,21 @@ def mesh_to_cloud(mesh, attributes: tuple[str, ...] = ()) -> Cloud:
     """Copy a ``pymeshlab.Mesh`` into a ``Cloud``.
 
     ``attributes`` names custom per-vertex scalar attributes to carry (pymeshlab
-    cannot list them).  Normals that are all zero count as absent.
+    cannot list them).  A layer built from Python always has normals, colours
+    and quality, so what carries no information counts as absent: normals that
+    are zero on every row, one colour on every vertex, quality zero everywhere.
+    Normals zero on some rows only are kept (the filters then name those rows).
     """
     pts = np.array(mesh.vertex_matrix(), dtype=np.float64)
     nrm = np.array(mesh.vertex_normal_matrix(), dtype=np.float64)
-    if nrm.shape != pts.shape or not np.isfinite(nrm).all() or (
-        np.linalg.norm(nrm, axis=1) < 1e-12
-    ).any():
+    if nrm.shape != pts.shape or (np.abs(nrm) < 1e-300).all():
         nrm = None
     colors = np.array(mesh.vertex_color_matrix(), dtype=np.float64) if mesh.has_vertex_color() else None
+    if colors is not None and len(colors) and (colors == colors[0]).all():
+        colors = None
     quality = np.array(mesh.vertex_scalar_array(), dtype=np.float64) if mesh.has_vertex_scalar() else None
+    if quality is not None and not quality.any():
+        quality = None
     faces = None
     if mesh.face_number() > 0:
         faces = np.array(mesh.face_matrix(), dtype=np.int64)

@@ -212,6 +212,13 @@ def _value(spec, param: ET.Element):
                                     f"got {text!r}") from None
 
 
+def pcprep_step_script(spec, params: dict, path) -> None:
+    """Write one pcprep step as a ``.mlx`` filter script."""
+    ms = MeshSet()
+    ms._record.append(_pcprep_element(spec, params))
+    ms.save_filter_script(path)
+
+
 def _pcprep_element(spec, params: dict) -> ET.Element:
     el = ET.Element("filter", name=spec.name)
     for p in spec.params:

@@ -280,3 +280,20 @@ def test_info_lists_attributes_crs_and_counts(tmp_path, capsys):
     for word in ("intensity", "gps_time", "confidence", "uint16", "point format 7",
                  "isolated points", "non-finite points: 0"):
         assert word in out, word
+
+
+def test_batch_runs_every_input_reports_failures_and_exits_non_zero(tmp_path, capsys, caplog):
+    for i in range(2):
+        _ply_with_properties(tmp_path / f"scan{i}.ply", text=False, n=600, seed=i, faces=False)
+    (tmp_path / "broken.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    inputs = [str(tmp_path / n) for n in ("scan0.ply", "broken.ply", "scan1.ply")]
+    assert main(["saliency", *inputs, "--out-dir", str(out), "--format", "laz"]) == 1
+    err = caplog.text
+    assert "broken.ply: failed" in err and "2 of 3 file(s) done" in err
+    assert sorted(os.listdir(out)) == ["scan0.laz", "scan1.laz"]
+    assert "saliency" in laspy.read(str(out / "scan1.laz")).point_format.extra_dimension_names
+    assert main(["saliency", *inputs[::2], "--out-dir", str(out)]) == 0
+    assert main(["saliency", *inputs]) == 1  # three paths and no --out-dir
+    assert "--out-dir" in capsys.readouterr().err
