@@ -161,7 +161,9 @@ def check_param(
             return bool(value)
         raise InvalidParameterError(f"{func}: {name} must be a bool, got {value!r}")
     if kind is int:
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, Integral):
+        if isinstance(value, (bool, np.bool_)):
+            raise InvalidParameterError(f"{func}: {name} must be an integer, got {value!r}")
+        if not isinstance(value, Integral):
             if isinstance(value, Real) and float(value).is_integer():
                 value = int(value)
             else:

@@ -101,3 +101,9 @@ def test_check_spread_names_duplicate_points():
     pts[40] = pts[7]
     with pytest.raises(PointCloudError, match=r"1 duplicate point\(s\) \(first: rows 7 and 40\)"):
         check_spread(pts, func="f")
+
+
+def test_a_bool_is_not_a_count():
+    """Regression: count=True was accepted as 1 (bool is an int subclass)."""
+    with pytest.raises(InvalidParameterError, match="n_iter must be an integer"):
+        resolve_params(PARAMS, {"n_iter": True}, "f")
