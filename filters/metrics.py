@@ -83,7 +83,7 @@ def mse_symmetric(p_true, p_est, *, unit_diagonal: bool = False) -> float:
     unit_diagonal : bool, default=False
         Divide by the squared bounding-box diagonal of ``p_true``, i.e. report the
         MSE of both clouds scaled so that the ground truth has a unit diagonal
-        (the convention of ALGORITHMS.md for comparing models).
+        (so that models of different sizes compare).
 
     Returns
     -------
