@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import _progress
 from ._denoise_kernels import _Ctx, _prepare
 from ._denoise_project import _pca_normals, _sphere_project
 from ._denoise_steps import _edge_correct, _init_normals, _inner_loop, _inner_pass, \
@@ -273,27 +274,29 @@ def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config):
     eps2 = cfg.epsilon ** 2
     frozen = np.zeros(n, dtype=bool)
     frozen_n = np.zeros((n, 3))
-    for j in range(cfg.n_iter):
-        nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, cfg.inner_iter, cfg.tol)
-        history.append(hist_j)
-        # position update (4.15), sign corrected, bounded by ε
-        shift = off if cfg.curvature_offset else tau
-        cand = ctx.x - shift[:, None] * nrm
-        far = np.square(cand - x0).sum(axis=1) > eps2
-        cand[far] = ctx.x[far]
-        if j >= cfg.curved_iter:  # curved, non-edge points stop moving
-            sag = np.abs(_smooth_curvature(ctx, nrm, curv)) * ctx.r2
-            new = ~frozen & (vn >= cfg.edge_threshold) & (sag > CURVED_SAG)
-            frozen_n[new] = nrm[new]
-            frozen |= new
-            cand[frozen] = ctx.x[frozen]
-        ctx.x[:] = cand
-        edge = vn < cfg.edge_threshold
-        if cfg.edge_correction:
-            n_corr = _edge_correct(ctx, nrm, edge, cfg.rho, cfg.delta)
-        ctx.refresh()
-        log.info("denoise_l1_tv: iteration %d/%d energy %.6g, %d edge points, "
-                 "%d corrected", j + 1, cfg.n_iter, hist_j[-1], int(edge.sum()), n_corr)
+    with _progress.step("denoise iterations", cfg.n_iter) as advance:
+        for j in range(cfg.n_iter):
+            nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, cfg.inner_iter, cfg.tol)
+            history.append(hist_j)
+            # position update (4.15), sign corrected, bounded by ε
+            shift = off if cfg.curvature_offset else tau
+            cand = ctx.x - shift[:, None] * nrm
+            far = np.square(cand - x0).sum(axis=1) > eps2
+            cand[far] = ctx.x[far]
+            if j >= cfg.curved_iter:  # curved, non-edge points stop moving
+                sag = np.abs(_smooth_curvature(ctx, nrm, curv)) * ctx.r2
+                new = ~frozen & (vn >= cfg.edge_threshold) & (sag > CURVED_SAG)
+                frozen_n[new] = nrm[new]
+                frozen |= new
+                cand[frozen] = ctx.x[frozen]
+            ctx.x[:] = cand
+            edge = vn < cfg.edge_threshold
+            if cfg.edge_correction:
+                n_corr = _edge_correct(ctx, nrm, edge, cfg.rho, cfg.delta)
+            ctx.refresh()
+            log.info("denoise_l1_tv: iteration %d/%d energy %.6g, %d edge points, "
+                     "%d corrected", j + 1, cfg.n_iter, hist_j[-1], int(edge.sum()), n_corr)
+            advance()
     if frozen.any():
         same = np.einsum("ij,ij->i", frozen_n, nrm) >= 0
         nrm = np.where(frozen[:, None], np.where(same[:, None], frozen_n, -frozen_n), nrm)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _progress
 from ._validation import InvalidParameterError
 
 log = logging.getLogger("pcprep")
@@ -239,15 +240,17 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
     coef = np.zeros((n, m))
     conv = np.ones(n, dtype=bool)
     n_iter = 0
-    for s in range(0, n, CHUNK):
-        e = min(n, s + CHUNK)
-        Dc = D[s:e]
-        Dt = Dc.transpose(0, 2, 1)
-        G = np.matmul(Dt, Dc)
-        c = np.matmul(Dt, x[s:e, :, None])[:, :, 0]
-        a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol, kkt_tol)
-        coef[s:e], conv[s:e] = a, ok
-        n_iter = max(n_iter, it)
+    with _progress.step("Lasso coding", n) as advance:
+        for s in range(0, n, CHUNK):
+            e = min(n, s + CHUNK)
+            Dc = D[s:e]
+            Dt = Dc.transpose(0, 2, 1)
+            G = np.matmul(Dt, Dc)
+            c = np.matmul(Dt, x[s:e, :, None])[:, :, 0]
+            a, ok, it = _solve_chunk(G, c, lam[s:e], max_iter, tol, kkt_tol)
+            coef[s:e], conv[s:e] = a, ok
+            n_iter = max(n_iter, it)
+            advance(e - s)
     if not conv.all():
         log.debug("lasso_batched: %d of %d problems hit max_iter=%d",
                  int((~conv).sum()), n, max_iter)

@@ -20,6 +20,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
+from . import _progress
 from ._validation import PointCloudError
 
 #: neighbours used for the average spacing h (thesis §4.5.1)
@@ -63,9 +64,19 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
         raise PointCloudError(f"knn: needs at least {kk} points for k={k}, got {n}")
     tree = build_tree(points) if tree is None else tree
     q = points if query is None else query
-    dist, idx = tree.query(q, k=kk, workers=-1)
+    if len(q) <= 4 * CHUNK:
+        dist, idx = tree.query(q, k=kk, workers=-1)
+    else:  # in slices, so a long query reports its progress (same answers)
+        dist = np.empty((len(q), kk))
+        idx = np.empty((len(q), kk), dtype=np.int64)
+        with _progress.step(f"{k}-NN query", len(q)) as advance:
+            for s in range(0, len(q), 4 * CHUNK):
+                e = min(len(q), s + 4 * CHUNK)
+                d, i = tree.query(q[s:e], k=kk, workers=-1)
+                dist[s:e], idx[s:e] = d.reshape(e - s, kk), i.reshape(e - s, kk)
+                advance(e - s)
     if kk == 1:
-        dist, idx = dist[:, None], idx[:, None]
+        dist, idx = dist.reshape(-1, 1), idx.reshape(-1, 1)
     if not include_self and query is None:
         dist, idx = dist[:, 1:], idx[:, 1:]
     return np.ascontiguousarray(dist), np.ascontiguousarray(idx.astype(np.int64, copy=False))

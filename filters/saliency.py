@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _progress
 from ._params import Param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
@@ -356,8 +357,9 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         sal = _normalise(hood.quantile(s_t, acc_quantile))
     else:
         sal = _normalise(hood.mean(s_t))
-    log.info("%s: %d of %d Lasso problems stopped at %d sweeps (near-duplicate atoms)",
-             func, n_bad, n, LASSO_ITER)
+    log.debug("%s: %d of %d Lasso problems kept their iterate after %d sweeps (their "
+              "atoms are near-duplicates; the residual is settled, nothing to do)",
+              func, n_bad, n, LASSO_ITER)
     return SaliencyResult(sal, s_t, sparsity, resid, Fbar, nrm, gauss, atoms, h, r, n_bad)
 
 

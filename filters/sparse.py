@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse as sp
 
+from . import _progress
 from . import _kernels
 from ._validation import InvalidParameterError, check_param, check_seed
 
@@ -645,15 +646,22 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
 def _ksvd_iterate(Xt, D, L, tol, max_iter, rng, errors):
     """Alternate OMP coding and the atom update (Alg. 3.3); D is updated in place."""
     mt = len(Xt)
-    for it in range(max_iter):
-        sup, coef = [], []
-        for s0 in range(0, mt, CHUNK):
-            a, b = _omp_codes(Xt[s0:s0 + CHUNK], D, L, tol)
-            sup.append(a)
-            coef.append(b)
-        sup, coef = np.concatenate(sup), np.concatenate(coef)
-        resid = Xt - np.einsum("ml,mld->md", coef, D[sup])
-        errors.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", resid, resid)))))
-        n_unused = _update_atoms(Xt, D, sup, coef, rng)
-        log.info("ksvd: iteration %d, rms residual %.4g, %d unused atom(s) replaced",
-                 it + 1, errors[-1], n_unused)
+    with _progress.step("K-SVD dictionary", max_iter) as advance:
+        for it in range(max_iter):
+            _ksvd_step(Xt, D, L, tol, rng, errors, mt, it)
+            advance()
+
+
+def _ksvd_step(Xt, D, L, tol, rng, errors, mt, it):
+    """One K-SVD iteration: code the training set, then update every atom."""
+    sup, coef = [], []
+    for s0 in range(0, mt, CHUNK):
+        a, b = _omp_codes(Xt[s0:s0 + CHUNK], D, L, tol)
+        sup.append(a)
+        coef.append(b)
+    sup, coef = np.concatenate(sup), np.concatenate(coef)
+    resid = Xt - np.einsum("ml,mld->md", coef, D[sup])
+    errors.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", resid, resid)))))
+    n_unused = _update_atoms(Xt, D, sup, coef, rng)
+    log.info("ksvd: iteration %d, rms residual %.4g, %d unused atom(s) replaced",
+             it + 1, errors[-1], n_unused)

@@ -275,14 +275,61 @@ def _plugin_commands() -> list:
                                        key=lambda ep: ep.name)]
 
 
+class _Bars:
+    """Progress listener for a terminal: one tqdm bar per running step, shown
+    only once the step has taken a second (tqdm's ``delay``)."""
+
+    def __init__(self):
+        from tqdm import tqdm
+
+        self._tqdm = tqdm
+        self._bars: dict = {}
+
+    def __call__(self, name: str, done: int, total: int) -> None:
+        bar = self._bars.get(name)
+        if done < 0:
+            if bar is not None:
+                bar.close()
+                del self._bars[name]
+            return
+        if bar is None:
+            bar = self._bars[name] = self._tqdm(total=total, desc=f"pcprep: {name}",
+                                                delay=1.0, leave=False, file=sys.stderr,
+                                                dynamic_ncols=True)
+        bar.update(done - bar.n)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
+    quiet = getattr(args, "quiet", False)
     logging.basicConfig(format="pcprep: %(message)s", stream=sys.stderr,
-                        level=logging.WARNING if getattr(args, "quiet", False) else logging.INFO)
+                        level=logging.WARNING if quiet else logging.INFO)
+    from pcprep.filters import _progress
+
+    bars = sys.stderr.isatty() and not quiet
+    previous = _progress.set_listener(_Bars() if bars else None)
+    with _log_through_bars(bars):
+        return _dispatch(args, previous)
+
+
+def _log_through_bars(bars: bool):
+    """While bars are shown, log lines are printed above them, not through them."""
+    if not bars:
+        from contextlib import nullcontext
+
+        return nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm()
+
+
+def _dispatch(args, previous) -> int:
+    from pcprep.filters import _progress
+
     try:
         if args.command == "info":
             _cmd_info(args.input)
@@ -306,6 +353,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write("pcprep: interrupted\n")
         return 130
+    finally:
+        _progress.set_listener(previous)
     return 0
 
 
