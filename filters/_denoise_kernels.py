@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._validation import PointCloudError, as_normals, as_points, check_spread
-from .neighbors import SPACING_K, build_tree, centered
+from .neighbors import SPACING_K, build_tree, centered, spacing_from_rows
 
 #: points per chunk of the neighbour passes (small blocks stay in the allocator's
 #: heap and in cache)
@@ -52,7 +52,8 @@ class _Ctx:
     """Working state shared by the chunk kernels (lengths in units of h).
 
     Neighbour arrays are built per chunk in structure-of-arrays float32 form
-    (one (c, k) array per coordinate); per-point state stays float64.
+    (one (c, k) array per coordinate), from differences taken in float64;
+    per-point state stays float64.
     """
 
     x: np.ndarray        # (n, 3) float64 current positions (units of h, centred)
@@ -64,10 +65,10 @@ class _Ctx:
     cos_n: float         # cos σ_n
     sn2: float           # σ_n² (radians²)
     l1: bool = False     # component-wise ℓ1 TV (thesis) instead of ℓ2
-    xt: np.ndarray = None  # (3, n) float32 copy of x for gathers
+    xt: np.ndarray = None  # (3, n) float64 copy of x for gathers
 
     def refresh(self):
-        self.xt = np.ascontiguousarray(self.x.T, dtype=F32)
+        self.xt = np.ascontiguousarray(self.x.T, dtype=np.float64)
 
 
 def _geometry(ctx: _Ctx, s: int, e: int):
@@ -75,10 +76,12 @@ def _geometry(ctx: _Ctx, s: int, e: int):
     idx = ctx.idx[s:e]
     d = []
     for a in range(3):
+        # the difference in float64, then float32: exact whatever the distance of
+        # the cloud from the origin or of other points from this one
         col = ctx.xt[a]
         da = np.take(col, idx)
         np.subtract(col[s:e, None], da, out=da)
-        d.append(da)
+        d.append(da.astype(F32))
     d2 = d[0] * d[0]
     d2 += d[1] * d[1]
     d2 += d[2] * d[2]
@@ -211,12 +214,14 @@ def _prepare(points, normals, k_max: int, func: str):
     itype = np.int32 if len(x) < 2**31 else np.int64
     idx = np.empty((len(x), k), dtype=itype)  # noqa: NPY-empty -- filled by chunks
     dsum = 0.0
+    rows = np.zeros(len(x))
     for s in range(0, len(x), QUERY_CHUNK):  # chunked: float64 distances stay small
         dist, ii = tree.query(x[s:s + QUERY_CHUNK], k=k, workers=-1)
         idx[s:s + QUERY_CHUNK] = ii
         dsum += float(dist[:, 1:SPACING_K + 1].sum())
+        rows[s:s + QUERY_CHUNK] = dist[:, 1:SPACING_K + 1].mean(axis=1)
     del tree, dist, ii
-    h = dsum / (len(x) * SPACING_K)
+    h = spacing_from_rows(rows, dsum / (len(x) * SPACING_K))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError(
             f"{func}: every point coincides with its neighbours (h = 0)")

@@ -82,9 +82,37 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
     return np.ascontiguousarray(dist), np.ascontiguousarray(idx.astype(np.int64, copy=False))
 
 
+#: a point whose mean distance to its SPACING_K nearest neighbours exceeds this
+#: many times the median of those means is isolated: it is left out of h
+ISOLATED_FACTOR = 10.0
+
+
+def spacing_from_rows(row_mean: np.ndarray, plain: float | None = None) -> float:
+    """h from every point's mean distance to its ``SPACING_K`` nearest neighbours.
+
+    h is the mean of ``row_mean`` over the points that are not isolated
+    (``row_mean <= ISOLATED_FACTOR * median``): a trimmed mean, so that one far
+    outlier cannot move the unit of every length (with a point 1e9 away from a
+    3000-point cube the plain mean is 13,000 times too large).  When no point is
+    isolated this is the plain mean, ``plain`` if the caller summed it already.
+    """
+    row_mean = np.asarray(row_mean, dtype=np.float64)
+    iso = isolated(row_mean)
+    if not iso.any():
+        return float(row_mean.mean()) if plain is None else float(plain)
+    return float(row_mean[~iso].mean())
+
+
+def isolated(row_mean: np.ndarray) -> np.ndarray:
+    """Mask of the isolated points, from their mean neighbour distances."""
+    row_mean = np.asarray(row_mean, dtype=np.float64)
+    return row_mean > ISOLATED_FACTOR * float(np.median(row_mean))
+
+
 def average_spacing(points: np.ndarray, k: int = SPACING_K, *, tree: cKDTree | None = None) -> float:
-    """Average spacing h: mean distance of every point to its ``k`` nearest
-    neighbours (self excluded), thesis §4.5.1.
+    """Spacing h, the unit of every length: the mean distance of each point to
+    its ``k`` nearest neighbours (self excluded, thesis §4.5.1), averaged over
+    the points that are not isolated (see ``spacing_from_rows``).
 
     Raises ``PointCloudError`` when h is zero (all points duplicated).
     """
@@ -94,7 +122,7 @@ def average_spacing(points: np.ndarray, k: int = SPACING_K, *, tree: cKDTree | N
             f"average_spacing: needs at least {k + 1} points, got {len(points)}"
         )
     d, _ = knn(points, k, tree=tree, include_self=False)
-    h = float(d.mean())
+    h = spacing_from_rows(d.mean(axis=1), float(d.mean()))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("average_spacing: every point coincides with its neighbours (h = 0)")
     return h

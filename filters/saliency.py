@@ -23,7 +23,7 @@ from . import _progress
 from ._params import Param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst
+from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst, spacing_from_rows
 
 log = logging.getLogger("pcprep")
 
@@ -142,13 +142,15 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None
     idx = np.zeros((n, k), dtype=np.int32)
     dist = np.zeros((n, k), dtype=np.float32)
     total = 0.0
+    rows = np.zeros(n)
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         d, j = tree.query(points[s:e], k=k, workers=-1)
         idx[s:e] = j
         dist[s:e] = d
         total += float(d[:, 1:SPACING_K + 1].sum())
-    h = total / (n * SPACING_K)
+        rows[s:e] = d[:, 1:SPACING_K + 1].mean(axis=1)
+    h = spacing_from_rows(rows, total / (n * SPACING_K))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("saliency_sparse_mdl: every point coincides with its "
                               "neighbours (h = 0)")

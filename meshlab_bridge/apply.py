@@ -105,7 +105,7 @@ def result_cloud(spec, cloud: Cloud, result) -> Cloud:
             name = f"{spec.attribute}_{spec.scalar_field}" if spec.attribute else spec.scalar_field
             out = _with_attribute(out, name, score)
         return out
-    if spec.kind == "new_layer":
+    if spec.kind in ("new_layer", "remove"):
         idx = np.asarray(getattr(result, spec.index_field), dtype=np.int64)
         out = cloud.subset(idx)
         if spec.scalar_field:
@@ -171,6 +171,12 @@ def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dic
             if not _has_attribute(mesh, key):
                 _add_attribute(mesh, key, values)
         outputs.update(mesh_id=ms.current_mesh_id(), kept=len(idx), attributes=[])
+        return outputs
+    if spec.kind == "remove":
+        idx = np.asarray(getattr(result, spec.index_field), dtype=np.int64)
+        _remove_rows(ms, layer, idx)
+        outputs.update(mesh_id=layer, kept=len(idx), removed=len(cloud) - len(idx),
+                       attributes=[])
         return outputs
     if spec.kind == "coord":
         _set_positions(ms, layer, out.points, out.normals)
@@ -244,6 +250,21 @@ def _select(ms, mask: np.ndarray) -> None:
         _call(ms, "compute_selection_by_scalar_per_vertex", minq=0.5, maxq=1.5)
     else:  # the bounds are clamped to the quality range: 0/0 would select all
         _call(ms, "set_selection_none")
+
+
+def _remove_rows(ms, layer: int, idx: np.ndarray) -> None:
+    """Keep only rows ``idx`` (increasing) of ``layer``, in place."""
+    mesh = ms.mesh(layer)
+    quality = np.array(mesh.vertex_scalar_array()) if mesh.has_vertex_scalar() else None
+    mask = np.ones(mesh.vertex_number(), dtype=bool)
+    mask[idx] = False
+    if not mask.any():
+        return
+    _carrier(ms, layer, mask.astype(np.float64))
+    _select(ms, mask)
+    _call(ms, "meshing_remove_selected_vertices")
+    if quality is not None:
+        _carrier(ms, layer, quality[idx])
 
 
 def _subset_layer(ms, layer: int, idx: np.ndarray, label: str) -> None:

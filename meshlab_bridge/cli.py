@@ -162,7 +162,7 @@ def _cmd_filters() -> None:
 
 #: what each kind of filter needs the output format to store
 _NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
-          "selection": ("quality", "attributes"), "new_layer": ()}
+          "selection": ("quality", "attributes"), "new_layer": (), "remove": ()}
 
 
 def _jobs(args) -> list[tuple[str, str]]:
@@ -223,7 +223,7 @@ def _cmd_filter(args) -> int:
 
 #: what each kind of filter needs the output format to store
 _NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
-          "selection": ("quality", "attributes"), "new_layer": ()}
+          "selection": ("quality", "attributes"), "new_layer": (), "remove": ()}
 
 
 def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -> None:
@@ -241,6 +241,11 @@ def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -
     log.info("%s: %d points from %s", spec.command, len(cloud), src)
     result = run_on_cloud(spec, cloud, params)
     out = result_cloud(spec, cloud, result)
+    if spec.kind == "remove":
+        gone = np.setdiff1d(np.arange(len(cloud)), getattr(result, spec.index_field))
+        shown = ", ".join(map(str, gone[:20])) + (", …" if len(gone) > 20 else "")
+        log.warning("%s: removed %d of %d points%s", src, len(gone), len(cloud),
+                    f" (rows {shown})" if len(gone) else "")
     save_cloud(out, dst, require=needs, ramp=spec.kind == "scalar")
     log.info("%s: wrote %d points to %s", spec.command, len(out), dst)
 

@@ -25,6 +25,7 @@ def filter_table_markdown() -> str:
         "scalar": "vertex quality in [0, 1] + colour ramp",
         "selection": "vertex selection + quality 1/0",
         "new_layer": "new layer with the kept input points",
+        "remove": "removes points from the layer (same layer)",
     }
     rows = ["| command | MeshSet filter | result | parameters (default, unit) |",
             "|---|---|---|---|"]

@@ -21,7 +21,7 @@ from pcprep.filters._params import UNITS, Param, resolve_params  # noqa: F401  (
 from pcprep.filters._validation import InvalidParameterError
 
 #: how a filter's result lands in a MeshSet
-KINDS = ("coord", "scalar", "selection", "new_layer")
+KINDS = ("coord", "scalar", "selection", "new_layer", "remove")
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,8 @@ class FilterSpec:
         the vertex selection), ``"scalar"`` (``scalar_field`` → vertex quality and
         a colour ramp), ``"selection"`` (``mask_field`` → selection,
         ``scalar_field`` → a custom attribute), ``"new_layer"`` (``index_field`` =
-        kept input indices → new layer).
+        kept input indices → new layer), ``"remove"`` (``index_field`` = kept
+        input indices; the other vertices are removed from the layer).
     uses_normals : bool
         Pass the layer's normals (when present) to ``func``.
     attribute : str or None

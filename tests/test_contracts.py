@@ -164,6 +164,9 @@ def test_meshset_bridge_equals_numpy(spec, part):
     if spec.kind == "new_layer":
         assert ms.mesh_number() == 2 and out["kept"] == len(direct[spec.index_field])
         assert np.array_equal(m.vertex_matrix(), part.points[direct[spec.index_field]])
+    if spec.kind == "remove":
+        assert ms.mesh_number() == 1 and out["mesh_id"] == 0
+        assert np.array_equal(m.vertex_matrix(), part.points[direct[spec.index_field]])
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=IDS)
@@ -177,7 +180,7 @@ def test_cli_writes_the_documented_output(spec, part, tmp_path):
     assert main(args) == 0
     got = load_cloud(str(dst))
     direct = _outputs(spec, _call(spec, part.points, part.normals if spec.uses_normals else None))
-    if spec.kind == "new_layer":
+    if spec.kind in ("new_layer", "remove"):
         assert np.array_equal(got.points, part.points[direct[spec.index_field]])
     else:
         assert len(got) == N

@@ -9,7 +9,7 @@ is an error.
 from importlib import import_module
 
 #: the filter families, in the order the report presents them
-FAMILIES = ("denoise", "simplify", "features", "saliency")
+FAMILIES = ("outliers", "denoise", "simplify", "features", "saliency")
 
 for _name in FAMILIES:
     import_module(f"{__name__}.{_name}")

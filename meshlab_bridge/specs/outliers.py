@@ -1,0 +1,28 @@
+"""
+outliers.py
+-----------
+Registry declaration of outlier removal (not in the thesis: a cleaning step
+before its filters, with PCL's statistical and radius criteria).
+"""
+
+from pcprep.filters import outliers as _m
+
+from ..registry import FilterSpec, register
+
+register(FilterSpec(
+    name="meshing_remove_point_outliers",
+    command="outliers",
+    label="Remove outliers (statistical or radius)",
+    description=(
+        "Removes isolated points before the thesis filters (not in the thesis): the "
+        "statistical criterion removes a point whose mean distance to its k nearest "
+        "neighbours exceeds the mean by std_ratio standard deviations (PCL's "
+        "StatisticalOutlierRemoval), the radius criterion one with fewer than "
+        "min_neighbors others within radius·h (PCL's RadiusOutlierRemoval); h is the "
+        "trimmed spacing, which the outliers do not move.  The layer keeps its id; "
+        "the removed indices are reported."
+    ),
+    func=_m.remove_outliers,
+    kind="remove",
+    index_field="keep_idx",
+))
