@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_info(path: str) -> None:
-    from pcprep.filters.neighbors import knn
+    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated, knn,
+                                          spacing_from_rows)
 
     from .cloud import describe
 
@@ -125,13 +126,14 @@ def _cmd_info(path: str) -> None:
         lines.append("non-finite points: 0")
     if cloud.faces is not None:
         lines.append(f"faces: {len(cloud.faces)}")
-    if len(pts) > 7:
-        dist, _ = knn(pts, 7)
-        nn = dist[:, 1]
-        spacing = float(np.median(dist[:, 1:].mean(axis=1)))
-        iso = int(np.count_nonzero(nn > 10.0 * max(float(np.median(nn)), 1e-300)))
-        lines.append(f"spacing h (median distance to the 6 nearest): {spacing:.6g}")
-        lines.append(f"isolated points (nearest neighbour > 10x the median): {iso}")
+    if len(pts) > SPACING_K:
+        dist, _ = knn(pts, SPACING_K, include_self=False)
+        rows = dist.mean(axis=1)
+        iso = int(np.count_nonzero(isolated(rows)))
+        lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "
+                     f"left out): {spacing_from_rows(rows):.6g}")
+        lines.append(f"isolated points (mean neighbour distance > {ISOLATED_FACTOR:g}x the "
+                     f"median; pcprep outliers removes them): {iso}")
     lines.append(f"bounding box min: {' '.join(f'{v:.17g}' for v in lo)}")
     lines.append(f"bounding box max: {' '.join(f'{v:.17g}' for v in hi)}")
     lines.append(f"diagonal: {float(np.linalg.norm(hi - lo)):.6g}")

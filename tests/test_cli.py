@@ -34,7 +34,7 @@ def test_info_reports_count_spacing_and_box(cloud_file, capsys):
     assert main(["info", str(cloud_file)]) == 0
     out = capsys.readouterr().out
     assert "points: 800" in out
-    h = float(out.split("spacing h (median distance to the 6 nearest): ")[1].split()[0])
+    h = float(out.split("isolated points left out): ")[1].split()[0])
     assert 0.3 < h < 1.0
     assert "bounding box min: 95" in out
 

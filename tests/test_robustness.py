@@ -43,3 +43,15 @@ def test_denoise_error_does_not_depend_on_a_far_copy(noisy_fandisk, offset):
     two = pcprep.denoise_l1_tv(np.r_[noisy, noisy + [offset, 0.0, 0.0]])
     e_two = np.linalg.norm(two.points[:len(noisy)] - s.points, axis=1).mean() / s.h
     assert e_alone < 0.1 and abs(e_two - e_alone) < 0.01 * e_alone
+
+
+def test_info_reports_the_isolated_points(tmp_path, capsys):
+    from pcprep.meshlab_bridge.cli import main
+    from pcprep.meshlab_bridge.convert import Cloud, save_cloud
+
+    cube = make_shape("cube", n=3000, seed=0).points
+    save_cloud(Cloud(np.r_[cube, [[1e9, 0.0, 0.0], [0.0, 5.0, 0.0]]]), str(tmp_path / "c.ply"))
+    assert main(["info", str(tmp_path / "c.ply")]) == 0
+    out = capsys.readouterr().out
+    assert "pcprep outliers removes them): 2" in out
+    assert f"left out): {average_spacing(cube):.6g}" in out
