@@ -47,10 +47,10 @@ FIT_PCA_K = 16
 
 PARAMS = (
     Param("lambda_tv", float, low=0.0, high=100.0),
-    Param("sigma_h", float, low=0.0, high=50.0, closed="right", unit="h"),
-    Param("sigma_d", float, low=0.0, high=50.0, closed="right", unit="h"),
-    Param("radius", float, low=0.0, high=50.0, closed="right", unit="h", optional=True),
-    Param("sigma_n_deg", float, low=0.0, high=90.0, closed="right", unit="deg"),
+    Param("sigma_h", float, low=0.01, high=50.0, unit="h"),
+    Param("sigma_d", float, low=0.1, high=50.0, unit="h"),
+    Param("radius", float, low=0.5, high=50.0, unit="h", optional=True),
+    Param("sigma_n_deg", float, low=0.1, high=90.0, unit="deg"),
     Param("rho", float, low=0.0, high=10.0, unit="h"),
     Param("delta", float, low=0.0, high=1.0, unit="h"),
     Param("epsilon", float, low=0.0, high=100.0, closed="right", unit="h"),
