@@ -5,8 +5,8 @@ Benchmark of thesis ch.7: sharp-feature and hole-boundary detection against
 the classic detectors (precision / recall / F1), a Table 7.1-style timing
 table, and the speed benchmark (115K points, 10 scales, beside one k-NN pass).
 
-``run`` writes ``reports/features.md/.json``; ``run_speed`` writes
-``reports/speed_features.md/.json``.
+``run`` writes ``reports/features.md`` and ``reports/features.json``; ``run_speed``
+writes ``reports/speed_features.md`` and ``reports/speed_features.json``.
 
 Besides the issue's truths (synthetic parts: points within 1h of a sharp edge;
 mesh models: vertices of sharp mesh edges, i.e. within about 0.25h), every
@@ -20,12 +20,13 @@ from __future__ import annotations
 import logging
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from pcprep.baselines import classic, datasets, harness, meshes
 from pcprep.baselines._sample import _segment_distance
-from pcprep.filters import features as F
+from pcprep.filters import holes, sharp
 from pcprep.filters.metrics import precision_recall_f1
 
 log = logging.getLogger("pcprep")
@@ -51,9 +52,21 @@ SHARP_BASELINES = ("surface_variation", "normal_variation", "projected_distance"
 #: half-widths (h) of the single-rule truth of the consistency check
 CHECK_WIDTHS = (0.5, 1.0)
 HOLE_BASELINES = ("angle_gap",)
-#: ``ours_raw`` for holes: the code-length rule with its shift gate alone
-_HOLE_RAW = dict(rim_width=None, extent_width=None, max_variation=None, min_support=0,
-                 min_radius=0.0, row_angle=None)
+#: ``ours_raw``: the code-length rule alone, reached through the detectors' private
+#: step switches (docs/decisions/features.md, "Parameters that left the public API");
+#: for holes with its shift gate and two-level Otsu threshold
+_SHARP_RAW_RULES = replace(sharp.DEFAULT_RULES, localise=False, angle_gate=False)
+_HOLE_RAW_RULES = replace(holes.DEFAULT_RULES, rim_distance=False, strip_extent=False,
+                          flatness=False, support=False, smallest_hole=False,
+                          border_row=False)
+
+
+def _sharp_raw(points, seed):
+    return sharp._detect(points, seed=seed, rules=_SHARP_RAW_RULES)
+
+
+def _holes_raw(points, seed):
+    return holes._detect(points, seed=seed, rules=_HOLE_RAW_RULES)
 
 
 def _blas_one_thread():
@@ -80,13 +93,12 @@ def _alt_scores(mask, alt_truths):
             float(precision_recall_f1(mask, t)[2]) for w, t in (alt_truths or {}).items()}
 
 
-def _run_all(points, truth, ours_fn, baselines, seed, raw_kw=None, alt_truths=None):
+def _run_all(points, truth, ours_fn, raw_fn, baselines, seed, alt_truths=None):
     out = {}
-    variants = [("ours", {})] + ([("ours_raw", raw_kw)] if raw_kw is not None else [])
-    for label, kw in variants:
+    for label, fn in (("ours", ours_fn), ("ours_raw", raw_fn)):
         t = time.perf_counter()
         try:
-            res = ours_fn(points, seed=seed, **kw)
+            res = fn(points, seed=seed)
             out[label] = dict(_score(res.mask, truth), seconds=time.perf_counter() - t,
                               **_alt_scores(res.mask, alt_truths))
         except Exception as exc:  # record, keep going
@@ -306,7 +318,7 @@ def _band_section(rows, methods) -> list[str]:
             "median spacing to their nearest neighbour, against about 6 % for a "
             "random sampling) ours keeps the border row, the detections that leave "
             "an empty angle > 90° around them, and follows it along itself "
-            "(`row_angle`, see `detect_hole_boundaries` Notes).", "",
+            "(`row_angle`, see docs/decisions/features.md, \"Border row test\").", "",
             harness.markdown_table(
                 ["data", "n"] + [f"{m} F1 (row)" for m in methods]
                 + [f"{m} F1 (band)" for m in methods], body, fmt="{:.3f}"), ""]
@@ -378,8 +390,8 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
             for sig in noise:
                 pts = s.points if sig == 0 else datasets.add_noise(
                     s.points, s.normals, sigma=sig, h=s.h, seed=seed + 1)
-                res = _run_all(pts, s.sharp, F.detect_sharp_features, SHARP_BASELINES, seed,
-                               raw_kw=dict(crease_width=None, min_angle=0.0), alt_truths=alt)
+                res = _run_all(pts, s.sharp, sharp.detect_sharp_features, _sharp_raw,
+                               SHARP_BASELINES, seed, alt_truths=alt)
                 log.info("bench_features: sharp %s σ=%g: %s", name, sig,
                          {k: round(v.get("f1", -1), 3) for k, v in res.items()})
                 sharp_rows.append({"data": name, "noise": sig, "n": len(pts),
@@ -397,8 +409,8 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                 pts = s.points if sig == 0 else datasets.add_noise(
                     s.points, s.normals, sigma=sig, h=s.h, seed=seed + 1)
                 res = _run_all(pts, np.zeros(len(pts), dtype=bool),
-                               F.detect_sharp_features, SHARP_BASELINES, seed,
-                               raw_kw=dict(crease_width=None, min_angle=0.0))
+                               sharp.detect_sharp_features, _sharp_raw, SHARP_BASELINES,
+                               seed)
                 smooth_rows.append({"data": nm, "noise": sig, "n": len(pts),
                                     "results": res})
         # closed surfaces: no border anywhere, every flagged point is a false positive
@@ -406,16 +418,16 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
         for name, s, sig in _closed_cases(quick, seed):
             pts = s.points if sig == 0 else datasets.add_noise(
                 s.points, s.normals, sigma=sig, h=s.h, seed=seed + 1)
-            res = _run_all(pts, np.zeros(len(pts), dtype=bool), F.detect_hole_boundaries,
-                           HOLE_BASELINES, seed, raw_kw=_HOLE_RAW)
+            res = _run_all(pts, np.zeros(len(pts), dtype=bool),
+                           holes.detect_hole_boundaries, _holes_raw, HOLE_BASELINES, seed)
             closed_rows.append({"data": name, "noise": sig, "n": len(pts), "results": res})
         hole_rows = []
         for name, s in _hole_cases(quick, seed):
             band = s.extra.get("rim_band")
             alt = ({"band": band} if band is not None and not np.array_equal(band, s.rim)
                    else None)
-            res = _run_all(s.points, s.rim, F.detect_hole_boundaries, HOLE_BASELINES, seed,
-                           raw_kw=_HOLE_RAW, alt_truths=alt)
+            res = _run_all(s.points, s.rim, holes.detect_hole_boundaries, _holes_raw,
+                           HOLE_BASELINES, seed, alt_truths=alt)
             log.info("bench_features: holes %s: %s", name,
                      {k: round(v.get("f1", -1), 3) for k, v in res.items()})
             hole_rows.append({"data": name, "n": len(s.points), "results": res,
@@ -455,9 +467,11 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "Ours = `detect_sharp_features` / `detect_hole_boundaries` with default "
           "parameters (seed %d); classic baselines from `baselines/classic.py` with "
           "Otsu thresholds (angle gap: π/2, k = 50); `ours_raw` = the same detectors "
-          "without the final localisation and clean-up steps (`crease_width=None, "
-          "min_angle=0` / `rim_width=None, extent_width=None, max_variation=None, "
-          "min_support=0, min_radius=0, row_angle=None`), i.e. the code-length rule "
+          "with their steps beyond the thesis switched off (the private rules "
+          "`sharp._detect(..., rules=...)` without localisation and angle gate / "
+          "`holes._detect(..., rules=...)` without border distance, strip extent, "
+          "flatness gate, support, smallest hole and border row; see "
+          "docs/decisions/features.md), i.e. the code-length rule "
           "alone (for holes with its shift gate and two-level Otsu threshold).  Ground "
           "truth: points within 1h of an edge with dihedral angle > 30° (sharp; on the "
           "shared mesh-vertex CAD models the vertices of such mesh edges), within 1.5h "
@@ -506,7 +520,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "Ours chooses its band from the sampling (`plane_width` = 1h / `crease_width` "
           "= 0.7h on irregular clouds, `row_width` = 0.5h on regular ones such as the "
           "mesh vertices, by "
-          "the nearest-neighbour distance CV; see `detect_sharp_features` Notes), so "
+          "the nearest-neighbour distance CV; see docs/decisions/features.md), so "
           "under the single 1h rule its mesh-model rows drop by construction.", "",
           harness.markdown_table(
               ["truth, set, noise"] + list(sm),
@@ -519,7 +533,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "sampling): percentage of points each detector flags as sharp (every one "
           "is a false positive; lower is better).  Otsu's threshold always finds a "
           "rare class; ours drops it by the crease-angle gate (`min_angle`, see "
-          "`detect_sharp_features` Notes), `ours_raw` shows the code-length rule "
+          "docs/decisions/features.md), `ours_raw` shows the code-length rule "
           "alone.", "",
           _flag_table(smooth_rows, sm),
           "## Hole boundaries", "",
@@ -528,7 +542,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
           "cross a crease: a border test must not lose them there.  The 1M-point "
           "fandisk has the same three 8h holes as the 20K one: a random sampling "
           "leaves more chance gaps the more points it has, while the rims keep "
-          "their size in h (`min_radius`, see `detect_hole_boundaries` Notes).", "",
+          "their size in h (`min_radius`, see docs/decisions/features.md).", "",
           *_band_section(hole_rows, hm),
           "## Closed surfaces (nothing to find)", "",
           "Closed clouds given to the hole detectors: percentage of points flagged as "
@@ -557,10 +571,10 @@ def _detect_warm(points, seed):
     """Seconds of ``detect_sharp_features`` on ``points`` after one small call
     in the same process (which loads numba's compiled kernels from the on-disk
     cache, or compiles them after an install: a one-off per process)."""
-    F.detect_sharp_features(datasets.make_shape("fandisk", n=2000, seed=0).points,
+    sharp.detect_sharp_features(datasets.make_shape("fandisk", n=2000, seed=0).points,
                             seed=seed)
     t = time.perf_counter()
-    F.detect_sharp_features(points, seed=seed)
+    sharp.detect_sharp_features(points, seed=seed)
     return time.perf_counter() - t
 
 
@@ -581,7 +595,7 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
     for n in sizes:
         s = datasets.make_shape("fandisk", n=n, seed=seed)
         warm = harness.measure(_detect_warm, s.points, seed)
-        out = harness.measure(F.detect_sharp_features, s.points, seed=seed)
+        out = harness.measure(sharp.detect_sharp_features, s.points, seed=seed)
         knn_s = harness.knn_pass_seconds(s.points, k=16)
         ours = float(warm.value) if warm.ok else None
         ratio = ours / float(knn_s) if ours is not None and float(knn_s) > 0 else None

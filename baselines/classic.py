@@ -8,7 +8,7 @@ sharp features, and the angle-gap criterion (as in PCL's BoundaryEstimation)
 for hole boundaries.
 
 Every detector takes ``(points, *, k=..., threshold=None)`` and returns a
-``features.DetectionResult``-like ``ClassicResult(mask, score, threshold)``;
+``multiscale.Detection``-like ``ClassicResult(mask, score, threshold)``;
 ``threshold=None`` picks it by Otsu's method on the score, so every method is
 compared with an automatic threshold, as the thesis' own default.
 """
@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcprep.filters._validation import InvalidParameterError, as_points, check_param, check_spread
-from pcprep.filters.features import largest_angle_gap, otsu_threshold
+from pcprep.filters._border import largest_angle_gap
+from pcprep.filters.multiscale import otsu_threshold
 from pcprep.filters.neighbors import average_spacing, build_tree, centered, knn, weighted_pca
 
 #: name -> function, for the benchmark

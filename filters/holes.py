@@ -1,0 +1,436 @@
+"""
+holes.py
+--------
+Hole-boundary detection (hole rims, open borders) by the rarity of the codes of
+multi-scale border features, thesis §7.3.1 and §7.3.4, eqs (7.5)-(7.7).
+
+1. Features per scale (7.5)-(7.7): |λ2 − 2λ1|/λ2, the density k h²/(π r²) and
+   the tangential centroid shift / r, from one sorted k-NN query
+   (``hole_features``), oriented so that larger is more border-like.
+2. Shared stage (``multiscale.code_lengths``): robust standardisation, K-SVD,
+   every point coded, a code-length score f per point (higher = rarer).
+3. Threshold: Otsu, or T = β·max f as (7.10); f > T.  The printed rule
+   (7.12)-(7.13), f < β·min f, selects nothing.
+4. Not in the thesis: point-wise tests on the geometry of each detection
+   (shift, border distance, flatness, strip extent), then tests along the
+   border (support, smallest hole, border row and its tracking); helpers in
+   ``_border.py``.
+
+The measurements behind every rule are in docs/decisions/features.md.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ._border import (border_distance, border_gap, border_radius, strip_extent,
+                      track_border)
+from ._params import Param, resolve_params, validate_params
+from .multiscale import (CodeLengths, Detection, ScoreConfig, code_lengths,
+                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes)
+from .neighbors import average_spacing, build_tree
+
+log = logging.getLogger("pcprep")
+
+_FUNC = "detect_hole_boundaries"
+#: random-like sampling: at least _RANDOM_CLOSE of the points have their nearest
+#: neighbour closer than _CLOSE_RATIO × the median nearest-neighbour distance
+_CLOSE_RATIO = 0.3
+_RANDOM_CLOSE = 0.01
+#: radius (h) within which a detection counts its detected neighbours, and the
+#: largest gap (h) within one border of the smallest-hole test
+_SUPPORT_RADIUS = 3.0
+#: largest step (h) between two samples of one border row (border tracking)
+_TRACK_LINK = 1.5
+#: default smallest hole radius (h) per unit of ln(n) on random-like sampling
+_CHANCE_GAP_PER_LOG_N = 0.3
+
+
+@dataclass(frozen=True)
+class _HoleRules:
+    """Which of the steps not in the thesis run (all do by default).
+
+    Off switches for the benchmark's ablation rows and a future thesis preset;
+    the public function always uses ``DEFAULT_RULES``.  Without the strip test
+    the threshold is a two-level Otsu.  See docs/decisions/features.md, section
+    "Parameters that left the public API".
+    """
+
+    rim_distance: bool = True    # border distance from the half-disc law (rim_width)
+    strip_extent: bool = True    # outermost samples toward the border (extent_width)
+    flatness: bool = True        # flatness gate (max_variation)
+    support: bool = True         # detected neighbours along the border (min_support)
+    smallest_hole: bool = True   # border radius on random-like sampling (min_radius)
+    border_row: bool = True      # border row and tracking on mesh-like sampling
+
+
+DEFAULT_RULES = _HoleRules()
+
+PARAMS = (
+    Param("min_shift", float, low=0.0, high=1.0, unit="fraction"),
+    Param("rim_width", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("extent_width", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("max_variation", float, low=0.0, high=1.0 / 3.0, unit="fraction"),
+    Param("min_support", int, low=0, high=1000, unit="count"),
+    Param("min_radius", float, low=0.0, high=1000.0, unit="h", optional=True),
+    Param("row_angle", float, low=0.0, high=360.0, unit="deg"),
+    Param("n_scales", int, low=1, high=32, unit="count"),
+    Param("k_min", int, low=5, high=500, unit="count"),
+    Param("k_max", int, low=5, high=500, unit="count"),
+    Param("n_atoms", int, low=2, high=1000, unit="count"),
+    Param("coder", str, choices=("omp", "lasso_lars")),
+    Param("alpha", float, low=0.0, high=100.0, closed="right", advanced=True),
+    Param("tol", float, low=0.0, high=10.0, closed="right", advanced=True),
+    Param("score", str, choices=("count", "l1")),
+    Param("beta", float, low=0.0, high=1.0, optional=True),
+    Param("max_iter", int, low=1, high=200, unit="count", advanced=True),
+    Param("max_train", int, low=100, high=10_000_000, unit="count", advanced=True),
+    Param("seed", int, low=0, optional=True),
+)
+
+
+@dataclass(frozen=True)
+class _HoleConfig:
+    """The hole-specific parameters of ``detect_hole_boundaries``, validated."""
+
+    min_shift: float
+    rim_width: float
+    extent_width: float
+    max_variation: float
+    min_support: int
+    min_radius: float | None
+    row_angle: float
+    beta: float | None
+
+
+@dataclass(frozen=True)
+class HoleFeatures:
+    """Multi-scale border features of a cloud (``hole_features``).
+
+    Attributes
+    ----------
+    features : (n, 3·s) float
+        Scale-major columns (|λ2 − 2λ1|/λ2, k h²/(π r²), shift / r) of scale 0,
+        then scale 1, ...  (not yet oriented).
+    h : float
+        Average spacing.
+    extent : (n,) float
+        ``strip_extent`` at the largest scale, in h.
+    variation : (n,) float
+        Surface variation λ0/Σλ of the smallest scale.
+    near : (n, k_min) int32
+        Each point's k_min nearest neighbours (column 0: the point itself).
+    close_fraction : float
+        Fraction of the points whose nearest neighbour is closer than 0.3 × the
+        median nearest-neighbour distance (random-like sampling: ≥ 1 %).
+    """
+
+    features: np.ndarray
+    h: float
+    extent: np.ndarray
+    variation: np.ndarray
+    near: np.ndarray
+    close_fraction: float
+
+
+@dataclass(frozen=True)
+class HoleResult(Detection):
+    """Result of ``detect_hole_boundaries``: the fields of
+    ``multiscale.Detection`` and the diagnostics of its localisation.
+
+    Attributes
+    ----------
+    border_distance : (n,) float or None
+        Border distance from the half-disc law (``border_distance``), in h
+        (None when that step is switched off).
+    border_extent : (n,) float
+        Each point's ``strip_extent`` in h.
+    """
+
+    border_distance: np.ndarray | None = None
+    border_extent: np.ndarray | None = None
+
+
+def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
+                  tree=None) -> HoleFeatures:
+    """Features (7.5)-(7.7) of every point at every scale, and the per-point
+    quantities of the localisation tests.
+
+    Per scale: epv = |λ2 − 2λ1|/λ2 (7.5), the density k h²/(π r²) (7.6, with
+    π for the printed p_i and r the distance to the k-th neighbour) and the
+    centroid shift ‖p̄ − p_i‖ (7.7) in the tangent plane, divided by r.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Centred cloud.
+    ks : (s,) int
+        Increasing neighbourhood sizes (``multiscale.scale_sizes``).
+    h : float, optional
+        Average spacing (mean distance to the 6 nearest neighbours by default).
+    tree : cKDTree, optional
+
+    Returns
+    -------
+    HoleFeatures
+
+    Examples
+    --------
+    >>> from pcprep.baselines.datasets import make_shape
+    >>> s = make_shape("disc", n=2000, seed=0)
+    >>> hole_features(s.points, scale_sizes(16, 80, 10)).features.shape
+    (2000, 30)
+    """
+    n = len(points)
+    ks = np.asarray(ks, dtype=np.int64)
+    h = average_spacing(points, tree=tree) if h is None else h
+    kf = ks.astype(np.float64)
+    out = np.empty((n, 3 * len(ks)))  # noqa: NPY-empty -- every row written below
+    extent = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    variation = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    near = np.empty((n, int(ks[0])), dtype=np.int32)  # noqa: NPY-empty -- all rows set
+    nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    for m in scale_moments(points, ks, tree=tree):
+        s, e = m.start, m.stop
+        nn1[s:e] = m.dist[:, 1]
+        near[s:e] = m.idx[:, :ks[0]]
+        lam, mean = m.eigenvalues, m.mean
+        l2s = np.maximum(lam[..., 2], 1e-300)
+        shift_n = np.einsum("csd,csd->cs", mean, m.normal)
+        r = np.maximum(m.dist[:, ks - 1], 1e-300)               # radius of the scale
+        shift_t = np.sqrt(np.maximum(np.einsum("csd,csd->cs", mean, mean)
+                                     - shift_n ** 2, 0.0))
+        f = np.stack([np.abs(lam[..., 2] - 2.0 * lam[..., 1]) / l2s,
+                      kf[None, :] / (np.pi * r * r), shift_t / r], axis=-1)
+        out[s:e] = f.reshape(e - s, -1)
+        extent[s:e] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
+        variation[s:e] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
+    out[:, 1::3] *= h * h                                       # k h² / (π r²)
+    close = float(np.mean(nn1 < _CLOSE_RATIO * np.median(nn1)))
+    return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,
+                        near=near, close_fraction=close)
+
+
+def _oriented(F: np.ndarray) -> np.ndarray:
+    """Columns turned so that larger is more border-like (§7.3.1: epv and
+    density drop at a border, the shift grows)."""
+    return F * np.tile([-1.0, -1.0, 1.0], F.shape[1] // 3)
+
+
+def _rim_distance(F: np.ndarray, ks: np.ndarray) -> np.ndarray:
+    """Border distance in h from the half-disc law, every scale's radius taken
+    from its density column."""
+    r_h = np.sqrt(ks[None, :] / (np.pi * np.maximum(F[:, 1::3], 1e-300)))
+    return border_distance(F[:, 2::3], r_h)
+
+
+def _threshold(score: np.ndarray, cfg: _HoleConfig, rules: _HoleRules) -> float:
+    """T = β·max f, or Otsu's split (a second split inside the upper class when
+    the strip test is off; docs/decisions/features.md, "Hole threshold")."""
+    if cfg.beta is not None:
+        return float(cfg.beta * score.max())
+    T = otsu_threshold(score)
+    if not rules.strip_extent and (score > T).sum() > 1:
+        T = otsu_threshold(score[score > T])
+    return T
+
+
+def _keep(mask: np.ndarray, test: np.ndarray, what: str) -> None:
+    """``mask &= test``, logged."""
+    n_det = int(mask.sum())
+    mask &= test
+    log.info("%s: %s keeps %d of %d detected points", _FUNC, what, int(mask.sum()), n_det)
+
+
+def _pointwise(mask, feats: HoleFeatures, bdist, cfg: _HoleConfig, rules: _HoleRules):
+    """The tests on each detection's own neighbourhood, in place."""
+    if cfg.min_shift > 0:
+        mask &= feats.features[:, 2::3].mean(axis=1) >= cfg.min_shift
+    if bdist is not None:
+        _keep(mask, bdist <= cfg.rim_width, "localisation")
+    if rules.flatness:
+        _keep(mask, feats.variation <= cfg.max_variation, "flatness gate")
+    if rules.strip_extent:
+        _keep(mask, feats.extent <= cfg.extent_width, "strip extent")
+
+
+def _support(pts, mask, h: float, min_support: int) -> None:
+    """Drop detections with fewer than ``min_support`` others within 3h, in place."""
+    det = np.flatnonzero(mask)
+    support = build_tree(pts[det]).query_ball_point(
+        pts[det], _SUPPORT_RADIUS * h, return_length=True) - 1
+    mask[det[support < min_support]] = False
+    log.info("%s: border support keeps %d of %d detected points", _FUNC,
+             int(mask.sum()), len(det))
+
+
+def _smallest_hole(pts, mask, h: float, min_radius: float | None) -> None:
+    """Drop the borders of radius below ``min_radius`` h (default 0.3·ln n), in place."""
+    r_min = (min_radius if min_radius is not None
+             else _CHANCE_GAP_PER_LOG_N * np.log(len(pts)))
+    det = np.flatnonzero(mask)
+    radius = border_radius(pts[det], _SUPPORT_RADIUS * h) / h
+    mask[det[radius < r_min]] = False
+    log.info("%s: borders of radius >= %.3g h keep %d of %d detected points", _FUNC,
+             r_min, int(mask.sum()), len(det))
+
+
+def _border_row(pts, mask, feats: HoleFeatures, row_angle: float) -> np.ndarray:
+    """Keep the detections with an empty angle > ``row_angle``, then add the
+    samples with such an angle chained to them within 1.5h."""
+    n_det = int(mask.sum())
+    row = border_gap(pts, feats.near) > np.radians(row_angle)
+    mask &= row
+    n_row = int(mask.sum())
+    mask = track_border(pts, mask, row, _TRACK_LINK * feats.h)
+    log.info("%s: border row (angular gap > %.3g deg) keeps %d of %d detected points; "
+             "tracking along it adds %d", _FUNC, row_angle, n_row, n_det,
+             int(mask.sum()) - n_row)
+    return mask
+
+
+def _select(pts, ks, feats: HoleFeatures, bdist, codes: CodeLengths, cfg: _HoleConfig,
+            rules: _HoleRules) -> HoleResult:
+    """Threshold, then the point-wise tests and the tests along the border."""
+    score = codes.score
+    T = _threshold(score, cfg, rules)
+    mask = score > T
+    _pointwise(mask, feats, bdist, cfg, rules)
+    if rules.support and cfg.min_support > 0 and mask.any():
+        _support(pts, mask, feats.h, cfg.min_support)
+    random_like = feats.close_fraction >= _RANDOM_CLOSE
+    log.info("%s: %.3g %% of the points have a neighbour closer than %.2g x the median "
+             "spacing: %s sampling", _FUNC, 100.0 * feats.close_fraction, _CLOSE_RATIO,
+             "random-like" if random_like else "mesh-like")
+    if random_like and rules.smallest_hole and mask.any():
+        _smallest_hole(pts, mask, feats.h, cfg.min_radius)
+    if not random_like and rules.border_row and mask.any():
+        mask = _border_row(pts, mask, feats, cfg.row_angle)
+    log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
+             len(pts))
+    return HoleResult(mask=mask, score=score, threshold=float(T),
+                      quality=mask.astype(np.float64), nnz=codes.nnz,
+                      residual=codes.residual, scales=ks, dictionary=codes.dictionary,
+                      h=feats.h, beta=cfg.beta, border_distance=bdist,
+                      border_extent=feats.extent)
+
+
+def _run(points, normals, cfg: _HoleConfig, stage: ScoreConfig,
+         rules: _HoleRules) -> HoleResult:
+    pts, tree = prepare_cloud(points, normals, k_min=stage.k_min, k_max=stage.k_max,
+                              func=_FUNC)
+    ks = scale_sizes(stage.k_min, stage.k_max, stage.n_scales)
+    feats = hole_features(pts, ks, tree=tree)
+    log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
+    bdist = _rim_distance(feats.features, ks) if rules.rim_distance else None
+    codes = code_lengths(_oriented(feats.features), stage)
+    return _select(pts, ks, feats, bdist, codes, cfg, rules)
+
+
+@validate_params(*PARAMS)
+def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
+                           rim_width: float = 2.0, extent_width: float = 1.4,
+                           max_variation: float = 0.13, min_support: int = 2,
+                           min_radius: float | None = None, row_angle: float = 90.0,
+                           n_scales: int = 10, k_min: int = 16, k_max: int = 80,
+                           n_atoms: int = 100, coder: str = "omp", alpha: float = 0.01,
+                           tol: float = 0.3, score: str = "l1", beta: float | None = None,
+                           max_iter: int = 10, max_train: int = 4000, seed: int | None = 0
+                           ) -> HoleResult:
+    """Detect hole rims and open borders by the rarity of multi-scale codes (§7.3.4).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The cloud (n > k_max).
+    normals : (n, 3) float, optional
+        Validated, not used: each scale's PCA normal is used.
+    min_shift : float, default=0.2
+        Smallest tangential centroid shift / radius, averaged over the scales (0: off).
+    rim_width : float, default=2.0
+        Keep a detection within this many h of the border implied by its shifts.
+    extent_width : float, default=1.4
+        Keep a detection within this many h of the outermost samples toward the border.
+    max_variation : float, default=0.13
+        Largest surface variation λ0/Σλ of the smallest neighbourhood.
+    min_support : int, default=2
+        Fewest other detections within 3h of a kept one.
+    min_radius : float, optional
+        Smallest hole radius in h on random-like sampling; auto: 0.3·ln(n).
+    row_angle : float, default=90.0
+        Empty angle (degrees) of a border sample on mesh-like sampling.
+    n_scales : int, default=10
+        Number of neighbourhood sizes, geometrically spaced from k_min to k_max.
+    k_min, k_max : int, default=16, 80
+        Smallest and largest neighbourhood (points, the point itself included).
+    n_atoms : int, default=100
+        Dictionary size S (thesis §7.4.1).
+    coder : {"omp", "lasso_lars"}, default='omp'
+        How every point is coded on the learned dictionary.
+    alpha : float, default=0.01
+        Lasso penalty of coder="lasso_lars", ½‖z − αD‖² + alpha‖α‖₁.
+    tol : float, default=0.3
+        OMP squared-residual target per feature, for coder="omp".
+    score : {"l1", "count"}, default='l1'
+        Rarity: ‖α‖₁ + residual, or the atom count of (7.8) (thesis).
+    beta : float, optional
+        Threshold T = β·max f as (7.10); auto: Otsu's method.
+    max_iter : int, default=10
+        K-SVD iterations.
+    max_train : int, default=4000
+        Points in the K-SVD training subsample.
+    seed : int or None, default=0
+        Seeds the K-SVD subsample and initialisation (None: fresh entropy).
+
+    Returns
+    -------
+    HoleResult
+        ``mask`` (n,) bool: f > T and every test below; ``score`` (n,): f.
+
+    Raises
+    ------
+    PointCloudError, InvalidParameterError
+        As ``detect_sharp_features``.
+
+    Notes
+    -----
+    Per scale (7.5)-(7.7): epv, the density k h²/(π r²) (printed k/(p_i·r²))
+    and the tangential centroid shift over r, which a crease does not produce
+    (docs/decisions/features.md, "Hole features (7.5)-(7.7)", as every heading
+    quoted).  (7.12)-(7.13), f < β·min f, selects nothing for β ≤ 1: as for
+    edges, borders are the rare codes ("Rarity rule instead of (7.12)-(7.13)").
+
+    Added, in the order applied: the shift gate, a rim's neighbourhood being
+    one-sided ("Shift gate"); border distance and strip extent, against a band
+    as wide as the largest neighbourhood ("Border distance", "Strip extent");
+    the flatness gate against thin parts ("Flatness gate"); border support, a
+    border being a curve ("Border support"); the smallest hole on random-like
+    sampling, whose chance gaps grow with n ("Smallest hole"); the border row
+    on mesh-like sampling, followed along itself ("Border row test", "Border
+    tracking").
+
+    Examples
+    --------
+    >>> from pcprep.baselines.datasets import make_shape
+    >>> s = make_shape("disc", n=4000, seed=0)
+    >>> r = detect_hole_boundaries(s.points)
+    >>> bool(r.mask[s.rim].mean() > 0.5 and not r.mask[~s.rim].mean() > 0.05)
+    True
+    """
+    cfg = _HoleConfig(min_shift, rim_width, extent_width, max_variation, min_support,
+                      min_radius, row_angle, beta)
+    stage = ScoreConfig(n_scales, k_min, k_max, n_atoms, coder, alpha, tol, score,
+                        max_iter, max_train, seed)
+    return _run(points, normals, cfg, stage, DEFAULT_RULES)
+
+
+def _detect(points, normals=None, *, rules: _HoleRules = DEFAULT_RULES,
+            **params) -> HoleResult:
+    """``detect_hole_boundaries`` with the steps of ``rules`` (the benchmark's
+    ablation rows).  ``params`` are its keywords, validated as there."""
+    kw = resolve_params(detect_hole_boundaries.params, params, _FUNC)
+    own = {f.name: kw.pop(f.name) for f in fields(_HoleConfig)}
+    return _run(points, normals, _HoleConfig(**own), ScoreConfig(**kw), rules)

@@ -1,0 +1,420 @@
+"""
+multiscale.py
+-------------
+The steps that sharp-feature detection (``sharp.py``) and hole-boundary
+detection (``holes.py``) share, thesis ch.7 (§7.3.2-§7.3.5):
+
+1. the scale sizes and one sorted k-NN query serving every scale
+   (``scale_moments``: each scale's centroid, covariance eigenvalues and normal);
+2. the column standardisation, the K-SVD dictionary and the code of every
+   point, reduced to one code-length score per point (``code_lengths``);
+3. Otsu's threshold and the chaining of nearby points (``chain_labels``).
+
+What each detector computes from the moments, and how it selects points from
+the score, lives in its own module.  The measured reasons behind each choice
+are in docs/decisions/features.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from . import sparse
+from ._validation import InvalidParameterError, as_normals, as_points, check_spread
+from .neighbors import CHUNK, build_tree, centered, knn
+
+#: floor of the robust feature scale, as a fraction of the column's std
+_MAD_FLOOR = 0.3
+#: points per chunk of the multi-scale moments and of the per-point fits
+MOMENT_CHUNK = CHUNK // 4
+
+
+# ---------------------------------------------------------------------------
+# scales and moments
+# ---------------------------------------------------------------------------
+
+def scale_sizes(k_min: int, k_max: int, n_scales: int) -> np.ndarray:
+    """Neighbourhood sizes of the scales (each counts the point itself).
+
+    ``n_scales`` integers from ``k_min`` to ``k_max``, geometrically spaced,
+    duplicates removed, so the result is strictly increasing and may be shorter
+    than ``n_scales``.
+
+    >>> scale_sizes(8, 40, 10).tolist()
+    [8, 10, 11, 14, 16, 20, 23, 28, 33, 40]
+    """
+    if n_scales == 1:
+        return np.array([k_min], dtype=np.int64)
+    return np.unique(np.round(np.geomspace(k_min, k_max, n_scales)).astype(np.int64))
+
+
+def sym3_eig(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues and smallest eigenvector of many symmetric 3x3 matrices.
+
+    Closed form (trigonometric solution of the characteristic cubic), about
+    ten times faster than ``np.linalg.eigh`` on millions of 3x3 matrices.
+
+    Parameters
+    ----------
+    cov : (..., 3, 3) float
+        Symmetric positive semi-definite matrices.
+
+    Returns
+    -------
+    lam : (..., 3) float
+        λ0 ≤ λ1 ≤ λ2, clipped below at 0.
+    normal : (..., 3) float
+        Unit eigenvector of λ0 (sign arbitrary): the largest cross product of
+        two rows of ``cov − λ0 I``.
+
+    >>> lam, n = sym3_eig(np.diag([3.0, 1.0, 2.0]))
+    >>> lam.round(12).tolist(), np.abs(n).tolist()
+    ([1.0, 2.0, 3.0], [0.0, 1.0, 0.0])
+    """
+    a00, a11, a22 = cov[..., 0, 0], cov[..., 1, 1], cov[..., 2, 2]
+    a01, a02, a12 = cov[..., 0, 1], cov[..., 0, 2], cov[..., 1, 2]
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    p = np.sqrt(p2 / 6.0)
+    safe = np.where(p > 0, p, 1.0)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+           + a02 * (a01 * a12 - b11 * a02))
+    r = np.clip(det / (2.0 * safe ** 3), -1.0, 1.0)
+    phi = np.arccos(r) / 3.0
+    l2 = q + 2.0 * p * np.cos(phi)
+    l0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    l1 = 3.0 * q - l2 - l0
+    lam = np.stack([l0, l1, l2], axis=-1)
+    lam = np.sort(np.maximum(lam, 0.0), axis=-1)
+    # eigenvector of λ0: null direction of (A − λ0 I), from row cross products
+    m = cov - l0[..., None, None] * np.eye(3)
+    r0, r1, r2 = m[..., 0, :], m[..., 1, :], m[..., 2, :]
+    c = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=-2)
+    cn = np.einsum("...ij,...ij->...i", c, c)
+    best = np.argmax(cn, axis=-1)
+    v = np.take_along_axis(c, best[..., None, None], axis=-2)[..., 0, :]
+    vn = np.sqrt(np.take_along_axis(cn, best[..., None], axis=-1))
+    normal = np.where(vn > 0, v / np.where(vn > 0, vn, 1.0), np.array([0.0, 0.0, 1.0]))
+    return lam, normal
+
+
+@dataclass(frozen=True)
+class ScaleMoments:
+    """The moments of one chunk of points at every scale (``scale_moments``).
+
+    Attributes
+    ----------
+    start, stop : int
+        The chunk is the points ``start:stop`` (c of them).
+    dist : (c, k_max) float
+        Distances to the k_max nearest neighbours, sorted (column 0 is the
+        point itself).
+    idx : (c, k_max) int
+        Their indices.
+    offsets : (c, k_max, 3) float
+        Neighbour positions relative to the point, ``p_j − p_i``.
+    mean : (c, s, 3) float
+        Centroid of each scale's neighbourhood relative to the point, ``p̄ − p_i``.
+    eigenvalues : (c, s, 3) float
+        λ0 ≤ λ1 ≤ λ2 of each scale's covariance (7.1), with the 1/(k − 1) factor.
+    normal : (c, s, 3) float
+        Unit eigenvector of λ0 at each scale (sign arbitrary).
+    """
+
+    start: int
+    stop: int
+    dist: np.ndarray
+    idx: np.ndarray
+    offsets: np.ndarray
+    mean: np.ndarray
+    eigenvalues: np.ndarray
+    normal: np.ndarray
+
+
+def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None
+                  ) -> Iterator[ScaleMoments]:
+    """Centroid and covariance of every point's neighbourhood at every scale.
+
+    One k-NN query with ``k = ks[-1]`` (neighbours sorted by distance) serves
+    all scales: block sums of ``x = p_j − p_i`` and of ``x xᵀ`` between
+    consecutive sizes, accumulated over the blocks, give each scale's mean and
+    covariance in O(n·k_max).  The covariance is (7.1) with uniform weights
+    (see docs/decisions/features.md, section "Uniform weights in (7.1)").
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Centred cloud, in model units.
+    ks : (s,) int
+        Increasing neighbourhood sizes (each counts the point itself).
+    tree : cKDTree, optional
+        The k-d tree of ``points`` (built when omitted).
+
+    Yields
+    ------
+    ScaleMoments
+        One per chunk of ``MOMENT_CHUNK`` points, in order.
+    """
+    n = len(points)
+    ks = np.asarray(ks, dtype=np.int64)
+    tree = build_tree(points) if tree is None else tree
+    k_max = int(ks[-1])
+    starts = np.concatenate([[0], ks[:-1]])
+    kf = ks.astype(np.float64)
+    corr = kf / np.maximum(kf - 1.0, 1.0)                       # 1/(k−1) of (7.1)
+    iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
+    for s in range(0, n, MOMENT_CHUNK):
+        e = min(n, s + MOMENT_CHUNK)
+        dist, idx = knn(points, k_max, tree=tree, query=points[s:e])
+        x = points[idx]                                         # (c, k, 3)
+        x -= points[s:e, None, :]
+        xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
+        mean = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2) / kf  # (3, c, S)
+        cov = np.empty((e - s, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
+        for i, j in zip(*iu):
+            s2 = np.cumsum(np.add.reduceat(xt[i] * xt[j], starts, axis=1), axis=1)
+            cij = (s2 / kf - mean[i] * mean[j]) * corr
+            cov[..., i, j] = cij
+            cov[..., j, i] = cij
+        lam, nrm = sym3_eig(cov)                                # (c, S, 3)
+        yield ScaleMoments(s, e, dist, idx, x, np.moveaxis(mean, 0, -1), lam, nrm)
+
+
+# ---------------------------------------------------------------------------
+# standardisation, dictionary, codes
+# ---------------------------------------------------------------------------
+
+def standardise(F: np.ndarray) -> np.ndarray:
+    """Robust one-sided standardisation of the feature columns.
+
+    ``z = max(0, (F − median) / s)`` per column, with
+    ``s = max(1.4826·MAD, 0.3·std)`` (1 where s = 0).  The columns must be
+    oriented so that larger means more feature-like; the bulk of ordinary
+    points then maps to (near) zero.  See docs/decisions/features.md, section
+    "Robust one-sided standardisation".
+
+    >>> standardise(np.array([[0.0], [1.0], [2.0], [10.0]])).ravel().round(3).tolist()
+    [0.0, 0.0, 0.337, 5.733]
+    """
+    med = np.median(F, axis=0)
+    std = F.std(axis=0)
+    scale = np.maximum(1.4826 * np.median(np.abs(F - med), axis=0), _MAD_FLOOR * std)
+    return np.maximum((F - med) / np.where(scale > 0, scale, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class ScoreConfig:
+    """Parameters of the shared stage: scales, dictionary and coding.
+
+    The fields are the detectors' parameters of the same names (see
+    ``detect_sharp_features``); they arrive validated.
+    """
+
+    n_scales: int
+    k_min: int
+    k_max: int
+    n_atoms: int
+    coder: str
+    alpha: float
+    tol: float
+    score: str
+    max_iter: int
+    max_train: int
+    seed: int | None
+
+
+@dataclass(frozen=True)
+class CodeLengths:
+    """The coded features (``code_lengths``).
+
+    Attributes
+    ----------
+    score : (n,) float
+        Code-length score f of every point (higher = rarer).
+    nnz : (n,) int
+        Atoms in each code, ``f(α_j)`` of (7.8)-(7.9).
+    residual : (n,) float
+        ``‖z_j − α_j D‖₂`` of each standardised feature vector.
+    dictionary : (n_atoms, d) float
+        The learned K-SVD dictionary (rows are atoms).
+    """
+
+    score: np.ndarray
+    nnz: np.ndarray
+    residual: np.ndarray
+    dictionary: np.ndarray
+
+
+def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
+    """Standardise, learn a dictionary, code every point, score its code.
+
+    The columns of ``F`` are standardised (``standardise``); a K-SVD
+    dictionary of ``cfg.n_atoms`` atoms (§7.3.2, Alg. 3.3, ⌊d/10⌋ atoms per
+    training signal) is learned on a seeded subsample of ``cfg.max_train``
+    points; every point is coded on it by OMP to the squared residual
+    ``tol·d`` or by the Lasso (``coder="lasso_lars"``, penalty ``alpha``).
+    The score is ``‖α_j‖₁ + r_j`` (``score="l1"``) or the atom count (7.8)
+    plus ``r_j/(1 + r_j)`` as a tie-break (``score="count"``), r_j the residual.
+
+    Parameters
+    ----------
+    F : (n, d) float
+        Features, oriented so that larger means more feature-like.
+    cfg : ScoreConfig
+
+    Returns
+    -------
+    CodeLengths
+    """
+    Z = standardise(F)
+    d = Z.shape[1]
+    L = max(1, min(d, cfg.n_atoms) // 10)
+    # the training subsample is drawn here so that K-SVD codes only it
+    rng = np.random.default_rng(cfg.seed)
+    m = len(Z)
+    train = np.arange(m) if m <= cfg.max_train else np.sort(
+        rng.choice(m, size=cfg.max_train, replace=False))
+    D = sparse.ksvd(Z[train], cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
+                    max_train=len(train), seed=cfg.seed).dictionary
+    if cfg.coder == "omp":
+        # signals already within the residual target need no atom (most
+        # ordinary points); only the others are pursued
+        busy = np.flatnonzero(np.einsum("ij,ij->i", Z, Z) > cfg.tol * d)
+        part = sparse.omp(Z[busy], D, tol=cfg.tol * d).tocoo()
+        codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
+                              shape=(len(Z), D.shape[0]))
+    else:
+        codes = sparse.lasso_lars(Z, D, alpha=cfg.alpha)
+    nnz, resid = sparse.code_length(codes, Z, D)
+    if cfg.score == "count":
+        score = nnz + resid / (1.0 + resid)     # the tie-break is in [0, 1)
+    else:
+        l1 = np.asarray(abs(codes.tocsr()).sum(axis=1)).ravel()
+        score = l1 + resid
+    return CodeLengths(score=score, nnz=nnz, residual=resid, dictionary=D)
+
+
+# ---------------------------------------------------------------------------
+# the cloud, the threshold, chains
+# ---------------------------------------------------------------------------
+
+def prepare_cloud(points, normals, *, k_min: int, k_max: int, func: str):
+    """Validate a detector's input and centre it.
+
+    Raises ``InvalidParameterError`` when ``k_min > k_max`` and
+    ``PointCloudError`` for an empty or non-finite cloud, fewer than
+    ``k_max + 1`` points, normals of the wrong shape, or collinear points.
+
+    Returns
+    -------
+    points : (n, 3) float
+        The centred cloud (a copy).
+    tree : cKDTree
+        Its k-d tree.
+    """
+    if k_min > k_max:
+        raise InvalidParameterError(
+            f"{func}: k_min must be <= k_max, got k_min={k_min}, k_max={k_max}")
+    pts = as_points(points, func=func, min_points=k_max + 1)
+    if normals is not None:
+        as_normals(normals, len(pts), func=func)
+    check_spread(pts, func=func)
+    pts, _ = centered(pts)
+    return pts, build_tree(pts)
+
+
+def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
+    """Otsu's threshold (maximal between-class variance) of ``values``.
+
+    A score with at most ``bins`` distinct values gets one bin per value.
+    Returns t; the upper class is ``values > t``.
+
+    >>> otsu_threshold(np.r_[np.ones(90), 5 * np.ones(10)])
+    3.0
+    """
+    v = np.asarray(values, dtype=np.float64).ravel()
+    lo, hi = float(v.min()), float(v.max())
+    if hi <= lo:
+        return hi
+    uniq = np.unique(v)
+    if len(uniq) <= bins:
+        centers, counts = np.unique(v, return_counts=True)
+        counts = counts.astype(np.float64)
+        cuts = 0.5 * (uniq[:-1] + uniq[1:])
+    else:
+        counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
+        counts = counts.astype(np.float64)
+        centers = 0.5 * (edges[:-1] + edges[1:])
+        cuts = edges[1:-1]
+    w = counts / counts.sum()
+    w0 = np.cumsum(w)[:-1]
+    mu = np.cumsum(w * centers)
+    mu_t = mu[-1]
+    mu0 = mu[:-1]
+    w1 = 1.0 - w0
+    ok = (w0 > 0) & (w1 > 0)
+    between = np.zeros_like(w0)
+    between[ok] = (mu_t * w0[ok] - mu0[ok]) ** 2 / (w0[ok] * w1[ok])
+    return float(cuts[int(np.argmax(between))])
+
+
+def chain_labels(points: np.ndarray, link: float) -> np.ndarray:
+    """Connected-component label of each point, points closer than ``link``
+    being joined (``points`` (m, 3), not empty).
+
+    >>> chain_labels(np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]]), 1.5).tolist()
+    [0, 0, 1]
+    """
+    m = len(points)
+    pairs = build_tree(points).query_pairs(link, output_type="ndarray")
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                          shape=(m, m))
+    return connected_components(graph, directed=False)[1]
+
+
+@dataclass(frozen=True)
+class Detection:
+    """What both detectors return (``SharpResult`` and ``HoleResult`` add
+    their own diagnostics).
+
+    Attributes
+    ----------
+    mask : (n,) bool
+        Detected points, in input order.
+    score : (n,) float
+        Code-length score f (higher = rarer).
+    threshold : float
+        The threshold T applied to ``score``.
+    quality : (n,) float
+        ``mask`` as 1.0 / 0.0 (the vertex quality written by the bridge).
+    nnz : (n,) int
+        Atoms in each point's code, ``f(α_j)`` of (7.8)-(7.9).
+    residual : (n,) float
+        ``‖z_j − α_j D‖₂`` of each standardised feature vector.
+    scales : (s,) int
+        Neighbourhood sizes used (each counts the point itself).
+    dictionary : (n_atoms, d) float
+        The learned K-SVD dictionary (rows are atoms).
+    h : float
+        Average spacing (mean distance to the 6 nearest neighbours), input units.
+    beta : float or None
+        β of (7.10) when given; None when the threshold came from Otsu.
+    """
+
+    mask: np.ndarray
+    score: np.ndarray
+    threshold: float
+    quality: np.ndarray
+    nnz: np.ndarray
+    residual: np.ndarray
+    scales: np.ndarray
+    dictionary: np.ndarray
+    h: float
+    beta: float | None

@@ -1,0 +1,393 @@
+"""
+sharp.py
+--------
+Sharp-feature detection (edges, corners) by the code length of multi-scale
+covariance features on a learned dictionary, thesis §7.3, eqs (7.1)-(7.11).
+
+1. Features per scale (7.1)-(7.4): λ0/h², λ0/λ2, σ = λ0/Σλ and Pd/h, from one
+   sorted k-NN query (``sharp_features``), concatenated over the scales (§7.3.5).
+2. Shared stage (``multiscale.code_lengths``): robust standardisation, K-SVD,
+   every point coded, a code-length score f per point.
+3. Threshold: Otsu on the winsorised score, or T = β·max f (7.10); f > T (7.11).
+4. Not in the thesis: a crease-angle gate (``min_angle``) and a localisation
+   step that keeps the points near the crease line (``crease_width``,
+   ``plane_width``, ``row_width``); helpers in ``_crease.py``.
+
+The measurements behind every rule are in docs/decisions/features.md.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ._crease import (crease_distance, localisation_k, noise_level, normal_spread,
+                      plane_k, two_plane_distance)
+from ._params import Param, resolve_params, validate_params
+from ._validation import PointCloudError
+from .multiscale import (CodeLengths, Detection, ScoreConfig, code_lengths,
+                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes)
+from .neighbors import SPACING_K, average_spacing, spacing_from_rows
+
+log = logging.getLogger("pcprep")
+
+_FUNC = "detect_sharp_features"
+#: quantile at which the score is winsorised before Otsu's threshold
+_WINSOR_Q = 0.95
+#: automatic threshold as a fraction of Otsu's split when gate and localisation are on
+_OTSU_SCALE_GATED = 0.6
+#: the two-plane model is used where its RMS residual is at most
+#: _PLANE_RMS0 + _PLANE_RMS_GAIN·σ̂ (in h)
+_PLANE_RMS0 = 0.05
+_PLANE_RMS_GAIN = 1.2
+#: neighbourhood size whose PCA normals seed the two-plane split and the angle gate
+_NORMAL_K = 16
+#: a sampling is regular (mesh vertices, grids) when the coefficient of variation
+#: of the nearest-neighbour distance is below this (uniform random: ≈ 0.52)
+_REGULAR_CV = 0.35
+
+
+@dataclass(frozen=True)
+class _SharpRules:
+    """Which of the steps not in the thesis run (all do by default).
+
+    Off switches for the benchmark's ablation rows and a future thesis preset;
+    the public function always uses ``DEFAULT_RULES``.  See
+    docs/decisions/features.md, section "Parameters that left the public API".
+    """
+
+    localise: bool = True         # keep points within a width of the crease line
+    two_plane: bool = True        # the two-plane crease model where it fits
+    row_by_sampling: bool = True  # row_width on regularly sampled clouds
+    angle_gate: bool = True       # the crease-angle gate (min_angle)
+
+
+DEFAULT_RULES = _SharpRules()
+
+PARAMS = (
+    Param("crease_width", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("plane_width", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("row_width", float, low=0.0, high=100.0, closed="right", unit="h"),
+    Param("min_angle", float, low=0.0, high=90.0, unit="deg"),
+    Param("otsu_scale", float, low=0.0, high=1.0, closed="right", optional=True),
+    Param("n_scales", int, low=1, high=32, unit="count"),
+    Param("k_min", int, low=5, high=500, unit="count"),
+    Param("k_max", int, low=5, high=500, unit="count"),
+    Param("n_atoms", int, low=2, high=1000, unit="count"),
+    Param("coder", str, choices=("omp", "lasso_lars")),
+    Param("alpha", float, low=0.0, high=100.0, closed="right", advanced=True),
+    Param("tol", float, low=0.0, high=10.0, closed="right", advanced=True),
+    Param("score", str, choices=("count", "l1")),
+    Param("beta", float, low=0.0, high=1.0, optional=True),
+    Param("max_iter", int, low=1, high=200, unit="count", advanced=True),
+    Param("max_train", int, low=100, high=10_000_000, unit="count", advanced=True),
+    Param("seed", int, low=0, optional=True),
+)
+
+
+@dataclass(frozen=True)
+class _SharpConfig:
+    """The sharp-specific parameters of ``detect_sharp_features``, validated."""
+
+    crease_width: float
+    plane_width: float
+    row_width: float
+    min_angle: float
+    otsu_scale: float | None
+    beta: float | None
+
+
+@dataclass(frozen=True)
+class SharpFeatures:
+    """Multi-scale sharp features of a cloud (``sharp_features``).
+
+    Attributes
+    ----------
+    features : (n, 4·s) float
+        Scale-major columns (λ0/h², λ0/λ2, σ, Pd/h) of scale 0, then scale 1, ...
+    h : float
+        Average spacing used to make them unit-free.
+    normals : (n, 3) float
+        PCA normals of the scale nearest 16 points (sign arbitrary).
+    nn_cv : float
+        Coefficient of variation of the nearest-neighbour distance.
+    """
+
+    features: np.ndarray
+    h: float
+    normals: np.ndarray
+    nn_cv: float
+
+
+@dataclass(frozen=True)
+class SharpResult(Detection):
+    """Result of ``detect_sharp_features``: the fields of ``multiscale.Detection``
+    and the diagnostics of its two gates.
+
+    Attributes
+    ----------
+    crease_distance : (n,) float or None
+        Each point's distance to its estimated crease line, in h (``inf`` for
+        points below the threshold); None when the step did not run (nothing
+        above the threshold).
+    crease_limit : (n,) float or None
+        The width each ``crease_distance`` was compared with, in h.
+    normal_spread : (n,) float or None
+        ``normal_spread`` in degrees of the points above the threshold (NaN
+        elsewhere); None when the gate is off or nothing passed the threshold.
+    """
+
+    crease_distance: np.ndarray | None = None
+    crease_limit: np.ndarray | None = None
+    normal_spread: np.ndarray | None = None
+
+
+def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
+                   tree=None) -> SharpFeatures:
+    """Features (7.1)-(7.4) of every point at every scale.
+
+    Per scale: λ0/h², λ0/λ2, σ = λ0/(λ0 + λ1 + λ2) (7.2) and Pd/h with
+    Pd = |(p_i − p̄)·n| (7.4), n the eigenvector of λ0 (7.1).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Centred cloud.
+    ks : (s,) int
+        Increasing neighbourhood sizes (``multiscale.scale_sizes``).
+    h : float, optional
+        Average spacing; by default the mean distance to the 6 nearest
+        neighbours over the points that are not isolated
+        (``neighbors.spacing_from_rows``), taken from the same query.
+    tree : cKDTree, optional
+
+    Returns
+    -------
+    SharpFeatures
+
+    Examples
+    --------
+    >>> from pcprep.baselines.datasets import make_shape
+    >>> s = make_shape("cube", n=2000, seed=0)
+    >>> sharp_features(s.points, scale_sizes(8, 40, 10)).features.shape
+    (2000, 40)
+    """
+    n = len(points)
+    ks = np.asarray(ks, dtype=np.int64)
+    own_h = h is None and int(ks[-1]) > SPACING_K
+    if h is None and not own_h:
+        h = average_spacing(points, tree=tree)
+    out = np.empty((n, 4 * len(ks)))  # noqa: NPY-empty -- every row written below
+    normals = np.empty((n, 3))  # noqa: NPY-empty -- every row written below
+    nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    rows = np.empty(n) if own_h else None  # noqa: NPY-empty -- every entry written below
+    j_nrm = int(np.argmin(np.abs(ks - _NORMAL_K)))
+    hsum = 0.0
+    for m in scale_moments(points, ks, tree=tree):
+        s, e = m.start, m.stop
+        if own_h:
+            hsum += float(m.dist[:, 1:SPACING_K + 1].sum())
+            rows[s:e] = m.dist[:, 1:SPACING_K + 1].mean(axis=1)
+        nn1[s:e] = m.dist[:, 1]
+        lam = m.eigenvalues
+        l0, l2s = lam[..., 0], np.maximum(lam[..., 2], 1e-300)
+        shift_n = np.einsum("csd,csd->cs", m.mean, m.normal)   # (p̄ − p_i)·n
+        f = np.stack([l0, l0 / l2s, l0 / np.maximum(lam.sum(-1), 1e-300),
+                      np.abs(shift_n)], axis=-1)
+        out[s:e] = f.reshape(e - s, -1)
+        normals[s:e] = m.normal[:, j_nrm]
+    if own_h:
+        h = spacing_from_rows(rows, hsum / (n * SPACING_K))
+        if not np.isfinite(h) or h <= 0.0:
+            raise PointCloudError(
+                "average_spacing: every point coincides with its neighbours (h = 0)")
+    out[:, 0::4] /= h * h                                       # λ0 in h²
+    out[:, 3::4] /= h                                           # Pd in h
+    m1 = float(nn1.mean())
+    cv = float(nn1.std() / m1) if m1 > 0 else 0.0
+    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=cv)
+
+
+def _threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
+    """T = β·max f (7.10), or a fraction of Otsu's split of the score winsorised
+    at its 95th percentile (see docs/decisions/features.md, sections
+    "Sharp threshold: winsorised Otsu" and "Threshold below Otsu's split")."""
+    if cfg.beta is not None:
+        return float(cfg.beta * score.max())
+    T = otsu_threshold(np.minimum(score, np.quantile(score, _WINSOR_Q)))
+    if cfg.otsu_scale is not None:
+        return T * float(cfg.otsu_scale)
+    gated = rules.angle_gate and cfg.min_angle > 0 and rules.localise
+    return T * (_OTSU_SCALE_GATED if gated else 1.0)
+
+
+def _crease_limits(pts, mask, ridge, feats: SharpFeatures, cfg: _SharpConfig,
+                   rules: _SharpRules, tree) -> tuple[np.ndarray, np.ndarray]:
+    """Each detected point's distance to its crease line and the width it must
+    meet (two-plane model where it fits, ridge line elsewhere; ``row_width``
+    on a regular sampling), both in h."""
+    h = feats.h
+    sigma = noise_level(feats.features[:, 0])
+    k_loc = localisation_k(sigma)
+    log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d", _FUNC, sigma, k_loc)
+    cdist = crease_distance(pts, mask, ridge, h=h, k=k_loc, tree=tree)
+    regular = rules.row_by_sampling and feats.nn_cv < _REGULAR_CV
+    log.info("%s: nearest-neighbour CV %.3g: %s sampling", _FUNC, feats.nn_cv,
+             "regular" if regular else "irregular")
+    limit = np.full(len(pts), float(cfg.row_width if regular else cfg.crease_width))
+    if rules.two_plane:
+        k_pl = plane_k(sigma)
+        pdist, prms = two_plane_distance(pts, mask, feats.normals, h=h, k=k_pl, tree=tree)
+        planar = np.isfinite(pdist) & (prms <= _PLANE_RMS0 + _PLANE_RMS_GAIN * sigma)
+        log.info("%s: two-plane crease model (k=%d) fits %d of %d detected points",
+                 _FUNC, k_pl, int(planar.sum()), int(mask.sum()))
+        cdist = np.where(planar, pdist, cdist)
+        limit[planar] = cfg.row_width if regular else cfg.plane_width
+    return cdist, limit
+
+
+def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _SharpConfig,
+            rules: _SharpRules) -> SharpResult:
+    """Threshold (7.10)-(7.11), then the crease-angle gate and the localisation."""
+    score = codes.score
+    T = _threshold(score, cfg, rules)
+    mask = score > T                                            # (7.11)
+    spread = cdist = limit = None
+    if rules.angle_gate and cfg.min_angle > 0 and mask.any():
+        spread = normal_spread(pts, mask, feats.normals, tree=tree)
+        n_det = int(mask.sum())
+        mask &= spread >= cfg.min_angle
+        log.info("%s: crease-angle gate (%.3g deg) keeps %d of %d detected points",
+                 _FUNC, cfg.min_angle, int(mask.sum()), n_det)
+    if rules.localise and mask.any():
+        # ridge strength: code length × mean Pd (h) over the larger half of the scales
+        ridge = score * feats.features[:, 3::4][:, len(ks) // 2:].mean(axis=1)
+        cdist, limit = _crease_limits(pts, mask, ridge, feats, cfg, rules, tree)
+        n_det = int(mask.sum())
+        mask &= cdist <= limit
+        log.info("%s: localisation keeps %d of %d detected points", _FUNC,
+                 int(mask.sum()), n_det)
+    log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
+             len(pts))
+    return SharpResult(mask=mask, score=score, threshold=float(T),
+                       quality=mask.astype(np.float64), nnz=codes.nnz,
+                       residual=codes.residual, scales=ks, dictionary=codes.dictionary,
+                       h=feats.h, beta=cfg.beta, crease_distance=cdist,
+                       crease_limit=limit, normal_spread=spread)
+
+
+def _run(points, normals, cfg: _SharpConfig, stage: ScoreConfig,
+         rules: _SharpRules) -> SharpResult:
+    pts, tree = prepare_cloud(points, normals, k_min=stage.k_min, k_max=stage.k_max,
+                              func=_FUNC)
+    ks = scale_sizes(stage.k_min, stage.k_max, stage.n_scales)
+    feats = sharp_features(pts, ks, tree=tree)
+    log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
+    codes = code_lengths(feats.features, stage)
+    return _select(pts, tree, ks, feats, codes, cfg, rules)
+
+
+@validate_params(*PARAMS)
+def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
+                          plane_width: float = 1.0, row_width: float = 0.5,
+                          min_angle: float = 25.0, otsu_scale: float | None = None,
+                          n_scales: int = 10, k_min: int = 8, k_max: int = 40,
+                          n_atoms: int = 100, coder: str = "omp", alpha: float = 0.01,
+                          tol: float = 0.1, score: str = "l1", beta: float | None = None,
+                          max_iter: int = 10, max_train: int = 4000, seed: int | None = 0
+                          ) -> SharpResult:
+    """Detect sharp edges and corners by the code length of multi-scale features (§7.3).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The cloud (n > k_max).
+    normals : (n, 3) float, optional
+        Validated, not used: (7.4) uses each scale's PCA normal.
+    crease_width : float, default=0.7
+        Keep a detected point within this many h of its ridge-line crease estimate.
+    plane_width : float, default=1.0
+        The same width where the two-plane crease model fits, in h.
+    row_width : float, default=0.5
+        Both widths on a regularly sampled cloud (mesh vertices, grids), in h.
+    min_angle : float, default=25.0
+        Keep a detected point only if its neighbours' normals turn by this angle (0: off).
+    otsu_scale : float, optional
+        Threshold as a fraction of Otsu's split; auto: 0.6 with the gates on, else 1.
+    n_scales : int, default=10
+        Number of neighbourhood sizes, geometrically spaced from k_min to k_max.
+    k_min, k_max : int, default=8, 40
+        Smallest and largest neighbourhood (points, the point itself included).
+    n_atoms : int, default=100
+        Dictionary size S (thesis §7.4.1).
+    coder : {"omp", "lasso_lars"}, default='omp'
+        How every point is coded on the learned dictionary.
+    alpha : float, default=0.01
+        Lasso penalty of coder="lasso_lars", ½‖z − αD‖² + alpha‖α‖₁.
+    tol : float, default=0.1
+        OMP squared-residual target per feature, for coder="omp".
+    score : {"l1", "count"}, default='l1'
+        Code length: ‖α‖₁ + residual, or the atom count of (7.8) (thesis).
+    beta : float, optional
+        Threshold T = β·max f of (7.10); auto: Otsu's method.
+    max_iter : int, default=10
+        K-SVD iterations.
+    max_train : int, default=4000
+        Points in the K-SVD training subsample.
+    seed : int or None, default=0
+        Seeds the K-SVD subsample and initialisation (None: fresh entropy).
+
+    Returns
+    -------
+    SharpResult
+        ``mask`` (n,) bool: f > T (7.11), ``normal_spread ≥ min_angle`` and
+        ``crease_distance ≤ crease_limit``; ``score`` (n,): f.
+
+    Raises
+    ------
+    PointCloudError, InvalidParameterError
+        A bad cloud (empty, NaN/Inf, ≤ k_max points, collinear) or parameter.
+
+    Notes
+    -----
+    f is the code length of F = (λ0/h², λ0/λ2, σ, Pd/h) per scale (7.1)-(7.4),
+    concatenated (§7.3.5), on a K-SVD dictionary; T = β·max f (7.10) or Otsu.
+    Deviations, measured in docs/decisions/features.md under the headings
+    quoted: uniform weights in (7.1), for one k-NN query ("Uniform weights in
+    (7.1)"); a robust one-sided standardisation, so that the code measures the
+    distance from the bulk ("Robust one-sided standardisation"); ‖α‖₁, finer
+    than the count (7.8) ("Code-length score"); Otsu on the score winsorised
+    at 95 %, lest a few corners form the upper class alone ("Sharp threshold:
+    winsorised Otsu").
+
+    Added: a crease-angle gate, as Otsu finds a rare class even on a sphere
+    ("Crease-angle gate"); a localisation, as the code marks a band as wide as
+    the largest neighbourhood: points beyond a width of the crease line (two
+    fitted planes, else the ridge line; ``row_width`` on regular sampling) are
+    dropped ("Crease localisation", "Two-plane crease model", "Width by
+    sampling"); with both, T is 0.6 of Otsu's split, for recall ("Threshold
+    below Otsu's split").
+
+    Examples
+    --------
+    >>> from pcprep.baselines.datasets import make_shape
+    >>> s = make_shape("cube", n=4000, seed=0)
+    >>> r = detect_sharp_features(s.points)
+    >>> bool(r.mask.shape == (4000,) and 0 < r.mask.sum() < 4000)
+    True
+    """
+    cfg = _SharpConfig(crease_width, plane_width, row_width, min_angle, otsu_scale, beta)
+    stage = ScoreConfig(n_scales, k_min, k_max, n_atoms, coder, alpha, tol, score,
+                        max_iter, max_train, seed)
+    return _run(points, normals, cfg, stage, DEFAULT_RULES)
+
+
+def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
+            **params) -> SharpResult:
+    """``detect_sharp_features`` with the steps of ``rules`` (the benchmark's
+    ablation rows).  ``params`` are its keywords, validated as there."""
+    kw = resolve_params(detect_sharp_features.params, params, _FUNC)
+    own = {f.name: kw.pop(f.name) for f in fields(_SharpConfig)}
+    return _run(points, normals, _SharpConfig(**own), ScoreConfig(**kw), rules)

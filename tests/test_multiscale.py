@@ -1,0 +1,117 @@
+"""Tests of filters/multiscale.py: the steps both chapter-7 detectors share."""
+
+import numpy as np
+import pytest
+
+from pcprep import InvalidParameterError, PointCloudError
+from pcprep.baselines.datasets import make_shape
+from pcprep.filters.multiscale import (ScoreConfig, chain_labels, code_lengths,
+                                       otsu_threshold, prepare_cloud, scale_moments,
+                                       scale_sizes, standardise, sym3_eig)
+from pcprep.filters.neighbors import centered, knn, weighted_pca
+
+
+def _config(**kw):
+    base = dict(n_scales=10, k_min=8, k_max=40, n_atoms=100, coder="omp", alpha=0.01,
+                tol=0.1, score="l1", max_iter=10, max_train=4000, seed=0)
+    return ScoreConfig(**{**base, **kw})
+
+
+def test_scale_sizes_are_increasing_and_span_the_range():
+    ks = scale_sizes(8, 40, 10)
+    assert ks[0] == 8 and ks[-1] == 40 and np.all(np.diff(ks) > 0)
+    assert scale_sizes(8, 40, 1).tolist() == [8]
+    assert scale_sizes(8, 10, 10).tolist() == [8, 9, 10]      # duplicates removed
+
+
+def test_sym3_eig_matches_eigh(rng):
+    a = rng.normal(size=(500, 3, 3))
+    cov = a @ a.transpose(0, 2, 1)
+    cov[:50, 2] = 0.0          # rank-deficient ones (flat neighbourhoods)
+    cov[:50, :, 2] = 0.0
+    lam, n = sym3_eig(cov)
+    ref, vec = np.linalg.eigh(cov)
+    np.testing.assert_allclose(lam, np.maximum(ref, 0), atol=1e-9 * ref.max())
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", n, vec[:, :, 0])), 1.0,
+                               atol=1e-6)
+
+
+def test_scale_moments_equal_direct_pca():
+    cube = make_shape("cube", n=3000, seed=0)
+    pts, _ = centered(cube.points)
+    ks = scale_sizes(8, 40, 10)
+    chunks = list(scale_moments(pts, ks))
+    assert chunks[0].start == 0 and chunks[-1].stop == len(pts)
+    lam = np.concatenate([c.eigenvalues for c in chunks])
+    mean = np.concatenate([c.mean for c in chunks])
+    _, idx = knn(pts, int(ks[-1]))
+    for s in (0, 4, len(ks) - 1):
+        k = int(ks[s])
+        pca = weighted_pca(pts, idx[:, :k])
+        np.testing.assert_allclose(lam[:, s], pca.eigenvalues * k / (k - 1),   # 1/(k−1)
+                                   atol=1e-12 * cube.h ** 2)
+        np.testing.assert_allclose(mean[:, s], pca.centroid - pts, atol=1e-12)
+
+
+def test_standardise_maps_the_bulk_to_zero_and_keeps_the_rare_side(rng):
+    F = np.c_[rng.normal(0.0, 1.0, 1000), rng.normal(5.0, 0.01, 1000)]
+    F[:10] += 20.0
+    Z = standardise(F)
+    assert (Z >= 0).all()
+    assert np.median(Z, axis=0).max() < 0.01                 # the bulk at zero
+    assert Z[:10].min() > 5.0                                # the rare side is large
+    # the 0.3·std floor: a constant column stays 0, no division by zero
+    assert not standardise(np.c_[np.ones(50), np.arange(50.0)])[:, 0].any()
+
+
+def test_code_lengths_rank_rare_vectors_higher(rng):
+    # 2000 ordinary feature vectors and 40 from a rare cluster
+    F = np.abs(rng.normal(0.0, 1.0, (2040, 12)))
+    F[2000:] += rng.normal(6.0, 1.0, (40, 12))
+    for kw in ({}, {"score": "count"}, {"coder": "lasso_lars"}):
+        c = code_lengths(F, _config(n_atoms=20, **kw))
+        assert c.score.shape == (2040,) and c.dictionary.shape == (20, 12)
+        rare = np.zeros(2040, bool)
+        rare[2000:] = True
+        # the count is an integer of a few atoms and ranks more coarsely than ‖α‖₁
+        q = 0.9 if kw.get("score") == "count" else 0.99
+        assert np.median(c.score[rare]) > np.quantile(c.score[~rare], q), kw
+    count = code_lengths(F, _config(n_atoms=20, score="count"))
+    # the residual tie-break lies in [0, 1)
+    np.testing.assert_array_equal(np.floor(count.score), count.nnz)
+
+
+def test_otsu_splits_two_modes(rng):
+    v = np.concatenate([rng.normal(0, 1, 5000), rng.normal(10, 1, 500)])
+    t = otsu_threshold(v)
+    assert 3 < t < 7
+    assert otsu_threshold(np.r_[np.ones(90), 5 * np.ones(10)]) == pytest.approx(3.0)
+    assert otsu_threshold(np.ones(5)) == 1.0
+
+
+def test_chain_labels_join_points_closer_than_the_link():
+    x = np.r_[np.arange(5.0), 10 + np.arange(3.0)]
+    lab = chain_labels(np.c_[x, np.zeros(8), np.zeros(8)], 1.5)
+    assert len(set(lab[:5])) == 1 and len(set(lab[5:])) == 1 and lab[0] != lab[5]
+
+
+def test_prepare_cloud_validates_and_centres(rng):
+    pts = rng.normal(size=(100, 3)) + 1e3
+    c, tree = prepare_cloud(pts, None, k_min=8, k_max=40, func="f")
+    # centred on the bounding-box centre
+    np.testing.assert_allclose(c.min(axis=0) + c.max(axis=0), 0.0, atol=1e-9)
+    assert tree.n == 100
+    with pytest.raises(InvalidParameterError, match="k_min must be <= k_max"):
+        prepare_cloud(pts, None, k_min=50, k_max=40, func="f")
+    with pytest.raises(PointCloudError, match="at least"):
+        prepare_cloud(pts[:30], None, k_min=8, k_max=40, func="f")
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    from pcprep.filters import _border, _crease, holes, multiscale, sharp
+
+    for module in (multiscale, sharp, holes, _crease, _border):
+        result = doctest.testmod(module)
+        assert result.attempted > 0 and result.failed == 0, module.__name__
