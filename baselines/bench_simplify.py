@@ -14,7 +14,7 @@ Protocol
 * Rates 5 / 10 / 20 / 50 %: target count = round(rate · n).  SDBS, Poisson-disk
   (MeshLab's radius bisection, 0.5 % tolerance), grid and HCS (searched to the
   count by ``pcprep.baselines.cgal``) and random hit it; MeshLab's simplified cloud
-  cannot be given a count (see BASELINES.md) and WLOP outputs rate % of n new
+  cannot be given a count (its exact-count flag has no effect) and WLOP outputs rate % of n new
   points (not a subset).  The kept count of every method is recorded.
 * Metric (6.12)-(6.13): Δmax / Δavg = max / mean distance of every original
   point to the PCA plane of its 10 nearest simplified points

@@ -12,8 +12,9 @@ so that benches can run it crash-isolated::
     out = harness.measure(meshlab.rimls, points, normals)
 
 Some of these filters segfault on inputs or parameter combinations they do not
-expect (see docs/BASELINES.md); the runners use the recipes verified there and
-validate inputs first, but always run them under ``harness.run_isolated``.
+expect (MLS projection of a layer onto itself, a point cloud without normals);
+the runners use recipes that avoid those cases and validate inputs first, but
+always run them under ``harness.run_isolated``.
 Coordinates are centred (bounding-box centre) before they reach MeshLab and
 shifted back on output, as pcprep's own filters do, so clouds far from the
 origin are treated alike.
@@ -46,7 +47,8 @@ def _check_count(count, n: int, func: str) -> int:
 
 
 def _mls(kind: str, points, normals, params: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Project the cloud onto its own MLS surface (BASELINES.md §0.1 recipe)."""
+    """Project the cloud onto its own MLS surface: a control layer and an identical
+    proxy layer, the control current (MeshLab crashes when the two are one layer)."""
     func = kind
     X = as_points(points, func=func, min_points=4)
     N = as_normals(normals, len(X), func=func)

@@ -28,6 +28,7 @@ from .harness import environment_info, resolve_out_dir, to_jsonable, write_repor
 log = logging.getLogger("pcprep")
 
 TITLES = {
+    "outliers": "Outlier removal (not in the thesis)",
     "denoise": "Denoising (thesis ch. 4)",
     "simplify": "Simplification, SDBS (thesis ch. 6)",
     "features": "Sharp features and hole boundaries (thesis ch. 7)",

@@ -287,9 +287,12 @@ def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
         # signals already within the residual target need no atom (most
         # ordinary points); only the others are pursued
         busy = np.flatnonzero(np.einsum("ij,ij->i", Z, Z) > cfg.tol * d)
-        part = sparse.omp(Z[busy], D, tol=cfg.tol * d).tocoo()
-        codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
-                              shape=(len(Z), D.shape[0]))
+        if len(busy):
+            part = sparse.omp(Z[busy], D, tol=cfg.tol * d).tocoo()
+            codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
+                                  shape=(len(Z), D.shape[0]))
+        else:  # a tolerance every signal already meets: no atom for anyone
+            codes = sp.csr_matrix((len(Z), D.shape[0]))
     else:
         codes = sparse.lasso_lars(Z, D, alpha=cfg.alpha)
     nnz, resid = sparse.code_length(codes, Z, D)

@@ -213,13 +213,14 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
         L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
                         low=1, high=min(d, S))
     rows, cols, vals = [], [], []
-    with _single_blas():
+    with _single_blas(), _progress.step("OMP coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
             r, c_, v = _compact(s0, *_omp_codes(X[s0:e], D, L, tol))
             rows.append(r)
             cols.append(c_)
             vals.append(v)
+            advance(e - s0)
     return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 
@@ -459,7 +460,7 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
         max_steps = 8 * K
     max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
     rows, cols, vals = [], [], []
-    with _single_blas():
+    with _single_blas(), _progress.step("LARS-Lasso coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
             act, beta = _lasso_chunk(X[s0:e], Du, alpha, K, max_steps)
@@ -467,6 +468,7 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
             rows.append(r)
             cols.append(c_)
             vals.append(v)
+            advance(e - s0)
     return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 

@@ -42,6 +42,7 @@ _EXPORTS = {
     "simplify_sdbs": "pcprep.filters.simplify",
     "detect_sharp_features": "pcprep.filters.sharp",
     "detect_hole_boundaries": "pcprep.filters.holes",
+    "MeshSet": "pcprep.meshlab_bridge.meshset",
     "apply_filter": "pcprep.meshlab_bridge.apply",
     "filter_list": "pcprep.meshlab_bridge.apply",
     "print_filter_parameter_list": "pcprep.meshlab_bridge.apply",

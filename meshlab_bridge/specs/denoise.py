@@ -24,6 +24,7 @@ register(FilterSpec(
         "normals of the current layer are replaced (same point count and order).  "
         "Lengths are in units of the average spacing h."
     ),
+    attribute="edge",
     func=_m.denoise_l1_tv,
     kind="coord",
     mask_field="edge_mask",

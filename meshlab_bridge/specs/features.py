@@ -29,6 +29,7 @@ register(FilterSpec(
         "quality 1 (others 0); the code-length score is kept as the per-vertex "
         "attribute 'score'."
     ),
+    attribute="sharp",
     func=_sharp.detect_sharp_features,
     kind="selection",
     mask_field="mask",
@@ -53,6 +54,7 @@ register(FilterSpec(
         "the filter's documentation.  Detected points become the vertex selection and "
         "vertex quality 1 (others 0)."
     ),
+    attribute="hole",
     func=_holes.detect_hole_boundaries,
     kind="selection",
     mask_field="mask",

@@ -23,6 +23,7 @@ register(FilterSpec(
         "default, or their mean with accumulation='mean').  Written to vertex quality with a colour ramp, like "
         "MeshLab's curvature filters."
     ),
+    attribute="saliency",
     func=_m.saliency_sparse_mdl,
     kind="scalar",
     scalar_field="saliency",
