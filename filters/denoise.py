@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import _progress
+from . import progress
 from ._denoise_kernels import _Ctx, _prepare
 from ._denoise_project import _pca_normals, _sphere_project
 from ._denoise_steps import _edge_correct, _init_normals, _inner_loop, _inner_pass, \
@@ -274,7 +274,7 @@ def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config):
     eps2 = cfg.epsilon ** 2
     frozen = np.zeros(n, dtype=bool)
     frozen_n = np.zeros((n, 3))
-    with _progress.step("denoise iterations", cfg.n_iter) as advance:
+    with progress.step("denoise iterations", cfg.n_iter) as advance:
         for j in range(cfg.n_iter):
             nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, cfg.inner_iter, cfg.tol)
             history.append(hist_j)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _progress
+from . import progress
 from ._validation import InvalidParameterError
 
 log = logging.getLogger("pcprep")
@@ -240,7 +240,7 @@ def lasso_batched(x, D, alpha, *, max_iter: int = 2000, tol: float = 1e-10,
     coef = np.zeros((n, m))
     conv = np.ones(n, dtype=bool)
     n_iter = 0
-    with _progress.step("Lasso coding", n) as advance:
+    with progress.step("Lasso coding", n) as advance:
         for s in range(0, n, CHUNK):
             e = min(n, s + CHUNK)
             Dc = D[s:e]

@@ -20,7 +20,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from . import _progress
+from . import progress
 from ._validation import PointCloudError
 
 #: neighbours used for the average spacing h (thesis §4.5.1)
@@ -69,7 +69,7 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
     else:  # in slices, so a long query reports its progress (same answers)
         dist = np.empty((len(q), kk))
         idx = np.empty((len(q), kk), dtype=np.int64)
-        with _progress.step(f"{k}-NN query", len(q)) as advance:
+        with progress.step(f"{k}-NN query", len(q)) as advance:
             for s in range(0, len(q), 4 * CHUNK):
                 e = min(len(q), s + 4 * CHUNK)
                 d, i = tree.query(q[s:e], k=kk, workers=-1)

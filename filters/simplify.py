@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _progress
+from . import progress
 from . import _kernels, sparse
 from ._params import Param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
@@ -479,7 +479,7 @@ def _search_delta(run, target: int, d: float, max_eval: int = 30):
     lo = hi = None  # lo: δ with count > target; hi: δ with count < target
     best = prev = None
     for _ in range(max_eval):
-        with _progress.step(f"greedy removal (delta {d:.3g} h)", 1) as advance:
+        with progress.step(f"greedy removal (delta {d:.3g} h)", 1) as advance:
             keep = run(d)
             advance()
         c = int(keep.sum())

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse as sp
 
-from . import _progress
+from . import progress
 from . import _kernels
 from ._validation import InvalidParameterError, check_param, check_seed
 
@@ -213,7 +213,7 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
         L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
                         low=1, high=min(d, S))
     rows, cols, vals = [], [], []
-    with _single_blas(), _progress.step("OMP coding", m) as advance:
+    with _single_blas(), progress.step("OMP coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
             r, c_, v = _compact(s0, *_omp_codes(X[s0:e], D, L, tol))
@@ -460,7 +460,7 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
         max_steps = 8 * K
     max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
     rows, cols, vals = [], [], []
-    with _single_blas(), _progress.step("LARS-Lasso coding", m) as advance:
+    with _single_blas(), progress.step("LARS-Lasso coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
             act, beta = _lasso_chunk(X[s0:e], Du, alpha, K, max_steps)
@@ -648,7 +648,7 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
 def _ksvd_iterate(Xt, D, L, tol, max_iter, rng, errors):
     """Alternate OMP coding and the atom update (Alg. 3.3); D is updated in place."""
     mt = len(Xt)
-    with _progress.step("K-SVD dictionary", max_iter) as advance:
+    with progress.step("K-SVD dictionary", max_iter) as advance:
         for it in range(max_iter):
             _ksvd_step(Xt, D, L, tol, rng, errors, mt, it)
             advance()

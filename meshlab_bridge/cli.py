@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     quiet = getattr(args, "quiet", False)
     logging.basicConfig(format="pcprep: %(message)s", stream=sys.stderr,
                         level=logging.WARNING if quiet else logging.INFO)
-    from pcprep.filters import _progress
+    from pcprep.filters import progress as _progress
 
     bars = sys.stderr.isatty() and not quiet
     previous = _progress.set_listener(_Bars() if bars else None)
@@ -335,7 +335,7 @@ def _log_through_bars(bars: bool):
 
 
 def _dispatch(args, previous) -> int:
-    from pcprep.filters import _progress
+    from pcprep.filters import progress as _progress
 
     try:
         if args.command == "info":

@@ -15,7 +15,7 @@ from pcprep.filters.metrics import precision_recall_f1
 from pcprep import InvalidParameterError, PointCloudError
 from pcprep.meshlab_bridge import registry
 from pcprep.meshlab_bridge.apply import apply_filter
-from pcprep.filters._params import docstring_parameters
+from pcprep.filters import docstring_parameters
 from pcprep.meshlab_bridge.cli import build_parser, main
 from pcprep.meshlab_bridge.convert import Cloud, load_cloud, save_cloud
 

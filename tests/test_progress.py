@@ -5,7 +5,7 @@ import numpy as np
 
 import pcprep
 from pcprep.baselines.datasets import make_shape
-from pcprep.filters import _progress
+from pcprep.filters import progress as _progress
 
 
 def _record(fn):

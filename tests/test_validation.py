@@ -1,14 +1,8 @@
 import numpy as np
 import pytest
 
-from pcprep.filters import Param, resolve_params
-from pcprep.filters._validation import (
-    InvalidParameterError,
-    PointCloudError,
-    as_normals,
-    as_points,
-    check_spread,
-)
+from pcprep.filters import (InvalidParameterError, Param, PointCloudError, as_normals,
+                            as_points, check_spread, resolve_params)
 
 PARAMS = (
     Param("sigma_d", float, low=0.0, high=20.0, closed="right", unit="h", default=3.0, help="support radius"),

@@ -1,6 +1,6 @@
 """
-_progress.py
-------------
+progress.py
+-----------
 Progress of the long steps (k-NN queries, iterations, dictionary learning,
 coding, greedy removal), reported to one listener that the caller installs:
 the ``pcprep`` command line shows a tqdm bar on a terminal, a MeshLab-style host
