@@ -40,24 +40,36 @@ def _check_extra() -> None:
 
 
 def _out(args) -> str:
-    """Quick runs go to their own folder so they never overwrite a full run."""
-    if args.out is not None:
-        return args.out
-    return "reports/quick" if args.quick else "reports"
+    """The output folder, checked before any harness runs: quick runs go to their
+    own folder so they never overwrite a full run."""
+    import os
+
+    out = args.out if args.out is not None else ("reports/quick" if args.quick else "reports")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise InvalidParameterError(f"--out {out!r} is a file, not a folder")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise InvalidParameterError(f"--out {out!r}: cannot create it ({exc.strerror})") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise InvalidParameterError(f"--out {out!r} is not writable")
+    return out
 
 
 def _run_bench(args) -> None:
     _check_extra()
+    out = _out(args)
     mod = import_module(f"pcprep.baselines.bench_{args.family}")
     fn = mod.run_speed if args.speed else mod.run
-    fn(quick=args.quick, seed=args.seed, out_dir=_out(args))
+    fn(quick=args.quick, seed=args.seed, out_dir=out)
 
 
 def _run_report(args) -> None:
     _check_extra()
+    out = _out(args)
     from . import report
 
-    report.build(quick=args.quick, seed=args.seed, out_dir=_out(args),
+    report.build(quick=args.quick, seed=args.seed, out_dir=out,
                  assemble_only=args.assemble_only, models=args.models)
 
 

@@ -61,7 +61,7 @@ def filter_parameter_text(name: str) -> str:
     for p in spec.params:
         unit = f" [{registry.UNITS[p.unit]}]" if p.unit else ""
         rng = f" range {p.range_text()}" if p.range_text() else ""
-        default = "auto" if p.default is None and p.optional else repr(p.default)
+        default = "none" if p.default is None else repr(p.default)
         lines.append(f"  {p.name} : {p.kind.__name__} = {default}{unit}{rng}")
         lines.append(f"      {p.help}")
     return "\n".join(lines)

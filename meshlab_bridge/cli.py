@@ -62,7 +62,7 @@ def _add_filter_command(sub, spec) -> None:
         kind = _bool if prm.kind is bool else prm.kind
         unit = f" [{registry.UNITS[prm.unit]}]" if prm.unit else ""
         rng = f" range {prm.range_text()}." if prm.range_text() else ""
-        default = "auto" if prm.default is None else prm.default
+        default = "none" if prm.default is None else prm.default
         p.add_argument(
             f"--{prm.name.replace('_', '-')}", dest=prm.name, type=kind, default=None,
             choices=prm.choices or None, metavar=prm.name.upper() if not prm.choices else None,

@@ -37,7 +37,7 @@ def filter_table_markdown() -> str:
                 continue
             default = p.default
             if default is None:
-                default = "none" if p.name == "seed" else "auto"
+                default = "none"
             unit = f" {p.unit}" if p.unit in ("h", "deg") else ""
             params.append(f"`{p.name}`={default}{unit}")
         rows.append(f"| `pcprep {spec.command}` | `{name}` | {produces[spec.kind]} | "

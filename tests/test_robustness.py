@@ -55,3 +55,31 @@ def test_info_reports_the_isolated_points(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "pcprep outliers removes them): 2" in out
     assert f"left out): {average_spacing(cube):.6g}" in out
+
+
+def test_bench_and_report_check_their_folder_before_any_work(tmp_path, capsys):
+    from pcprep.meshlab_bridge.cli import main
+
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    for cmd in (["bench", "denoise", "--quick"], ["report", "--quick"]):
+        assert main([*cmd, "--out", str(afile)]) == 1
+        assert "is a file" in capsys.readouterr().err
+        assert main([*cmd, "--out", str(afile / "sub")]) == 1
+        assert "cannot create" in capsys.readouterr().err
+
+
+def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    from pcprep.meshlab_bridge import formats
+    from pcprep.meshlab_bridge.cloud import Cloud
+    from pcprep.meshlab_bridge.formats import ply
+
+    def interrupted(cloud, path):
+        with open(path, "wb") as f:
+            f.write(b"partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ply, "write", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        formats.write_cloud(Cloud(np.eye(3)), tmp_path / "x.ply")
+    assert list(tmp_path.iterdir()) == []
