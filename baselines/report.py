@@ -27,7 +27,10 @@ from .harness import environment_info, resolve_out_dir, to_jsonable, write_repor
 
 log = logging.getLogger("pcprep")
 
+#: benchmarks that are not a filter family: run once, no speed part
+EXTRA = ("robustness",)
 TITLES = {
+    "robustness": "Robustness: bad and odd input",
     "outliers": "Outlier removal (not in the thesis)",
     "denoise": "Denoising (thesis ch. 4)",
     "simplify": "Simplification, SDBS (thesis ch. 6)",
@@ -115,8 +118,8 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
     t0 = time.perf_counter()
     env = environment_info()
     steps = []
-    for family in FAMILIES:
-        for speed in (False, True):
+    for family in (*FAMILIES, *EXTRA):
+        for speed in (False, True) if family not in EXTRA else (False,):
             if assemble_only:
                 name = f"speed_{family}" if speed else family
                 there = _report_file(out, name, quick).exists()
@@ -125,6 +128,8 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
                               "seconds": 0.0})
             else:
                 steps.append(_run_step(family, speed, quick, seed, str(out)))
+            if steps[-1]["status"] == "no benchmark":
+                break  # one row says so; no speed row
     figs, fig_failures = figures.build_all(out / "img", seed=seed)
     total = time.perf_counter() - t0
 
@@ -166,12 +171,14 @@ def build(quick: bool = False, seed: int = 0, out_dir: str = "reports",
         for fail in fig_failures:
             md.append(f"- picture **FAILED**: {fail}")
         md.append("")
-    for family in FAMILIES:
+    for family in (*FAMILIES, *EXTRA):
         md.append(f"## {TITLES.get(family, family)}")
         md.append("")
-        for name in (family, f"speed_{family}"):
+        for name in (family,) if family in EXTRA else (family, f"speed_{family}"):
             path = _report_file(out, name, quick)
-            step = next(s for s in steps if s["name"] == name)
+            step = next((s for s in steps if s["name"] == name), None)
+            if step is None:
+                continue
             if step["status"] == "no benchmark":
                 md.append(f"{name}: this family has no benchmark.")
                 md.append("")

@@ -29,7 +29,7 @@ def _fake_bench(family, fail=False):
 
 def test_tiny_report_structure(tmp_path, monkeypatch):
     benches = {f"pcprep.baselines.bench_{f}": _fake_bench(f, fail=(f == "simplify"))
-               for f in report.FAMILIES}
+               for f in (*report.FAMILIES, *report.EXTRA)}
     real_import = report.import_module
     monkeypatch.setattr(report, "import_module",
                         lambda name: benches[name] if name in benches else real_import(name))

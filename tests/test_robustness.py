@@ -83,3 +83,10 @@ def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         formats.write_cloud(Cloud(np.eye(3)), tmp_path / "x.ply")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_robustness_bench_finds_no_wrong_answer_in_files_or_destinations():
+    from pcprep.baselines.bench_robustness import _destinations, _files
+
+    for key, counts in {**_files(0), **_destinations()}.items():
+        assert counts.get("wrong", 0) == 0 and counts.get("crashed", 0) == 0, key

@@ -38,8 +38,9 @@ def read(path: str) -> Cloud:
 
     try:
         las = laspy.read(path)
-    except laspy.errors.LaspyException as exc:
-        raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
+    except (laspy.errors.LaspyException, RuntimeError) as exc:  # lazrs: RuntimeError
+        raise PointCloudError(f"cannot read {path!r}: {exc} (truncated or damaged "
+                              "file?)") from exc
     header = las.header
     if header.point_count != len(las.points):
         raise PointCloudError(f"cannot read {path!r}: the header declares "
