@@ -4,7 +4,8 @@ _denoise_kernels.py
 Array kernels of :func:`pcprep.filters.denoise.denoise_l1_tv`: the neighbour
 query in units of h, the chunked thread-pool runner, and the per-chunk weights
 of the energy (4.5) (θ, ψ, η, the TV term) on a padded ``(n, k)`` neighbour
-array in float32 structure-of-arrays form.
+array in float64 structure-of-arrays form (float32 made the result depend on
+the pose of the cloud: a rotation changed it by up to 0.3 h).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ QUERY_CHUNK = 131_072
 #: IRLS sub-iterations of the τ step (4.14) in the n⁰ passes
 TAU_IRLS = 3
 
-F32 = np.float32
+WORK = np.float64  # the working precision of the chunk kernels
 
 # ---------------------------------------------------------------------------
 # chunked, threaded execution
@@ -51,9 +52,8 @@ def _run_chunks(fn, n: int) -> list:
 class _Ctx:
     """Working state shared by the chunk kernels (lengths in units of h).
 
-    Neighbour arrays are built per chunk in structure-of-arrays float32 form
-    (one (c, k) array per coordinate), from differences taken in float64;
-    per-point state stays float64.
+    Neighbour arrays are built per chunk in structure-of-arrays form (one
+    (c, k) float64 array per coordinate).
     """
 
     x: np.ndarray        # (n, 3) float64 current positions (units of h, centred)
@@ -76,24 +76,23 @@ def _geometry(ctx: _Ctx, s: int, e: int):
     idx = ctx.idx[s:e]
     d = []
     for a in range(3):
-        # the difference in float64, then float32: exact whatever the distance of
-        # the cloud from the origin or of other points from this one
+        # full precision whatever the distance of the cloud from the origin
         col = ctx.xt[a]
         da = np.take(col, idx)
         np.subtract(col[s:e, None], da, out=da)
-        d.append(da.astype(F32))
+        d.append(da)
     d2 = d[0] * d[0]
     d2 += d[1] * d[1]
     d2 += d[2] * d[2]
     valid = d2 <= ctx.r2
-    theta = np.exp(d2 * F32(-1.0 / ctx.sd2))
+    theta = np.exp(d2 * WORK(-1.0 / ctx.sd2))
     theta *= valid
     return d, d2, valid, theta
 
 
 def _dot(d, v):
     """Σ_a d[a] * v[:, a] for (c, k) arrays ``d`` and (c, 3) ``v``."""
-    v = v.astype(F32, copy=False)
+    v = v.astype(WORK, copy=False)
     out = d[0] * v[:, 0:1]
     out += d[1] * v[:, 1:2]
     out += d[2] * v[:, 2:3]
@@ -102,7 +101,7 @@ def _dot(d, v):
 
 def _psi(res: np.ndarray, sh2: float) -> np.ndarray:
     """ψ = exp(−(h − τ)²/σ_h²) of (4.3), from the residuals h − τ."""
-    return np.exp(np.square(res) * F32(-1.0 / sh2))
+    return np.exp(np.square(res) * WORK(-1.0 / sh2))
 
 
 def _eta(res: np.ndarray, psi: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -117,19 +116,19 @@ def _eta(res: np.ndarray, psi: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 def _rowsum(a: np.ndarray) -> np.ndarray:
-    """Row sums of a (c, k) float32 array (BLAS matrix-vector product), as float64."""
+    """Row sums of a (c, k) array (BLAS matrix-vector product), as float64."""
     return (a @ np.ones(a.shape[1], dtype=a.dtype)).astype(np.float64)
 
 
 def _tau_irls(hgt, tau, theta, sh2, n_steps=TAU_IRLS):
     """IRLS weighted L1-median of the heights (4.14); ``hgt`` (..., k)."""
-    tau = tau.astype(F32)
+    tau = tau.astype(WORK)
     for _ in range(n_steps):
         r = hgt - tau[..., None]
         et = _eta(r, _psi(r, sh2), theta)
         den = et.sum(axis=-1)
         num = (et * hgt).sum(axis=-1)
-        tau = np.where(den > 0, num / np.where(den > 0, den, 1.0), tau).astype(F32)
+        tau = np.where(den > 0, num / np.where(den > 0, den, 1.0), tau).astype(WORK)
     return tau.astype(np.float64)
 
 
@@ -168,14 +167,14 @@ def _tv(ctx: _Ctx, n_i: np.ndarray, nb, tvmask):
     """Sign-aligned neighbour normals, w_ij and Σ_j w_ij‖n_i − n_j‖ (4.4), the
     norm being ℓ2 (``ctx.l1`` False) or the thesis' component-wise ℓ1."""
     dots = _dot(nb, n_i)
-    sgn = np.where(dots < 0, F32(-1.0), F32(1.0))
+    sgn = np.where(dots < 0, WORK(-1.0), WORK(1.0))
     al = [nb[a] * sgn for a in range(3)]
     c = np.abs(dots)
-    w = np.square((1.0 - c) * F32(1.0 / (1.0 - ctx.cos_n)))
+    w = np.square((1.0 - c) * WORK(1.0 / (1.0 - ctx.cos_n)))
     np.negative(w, out=w)
     np.exp(w, out=w)
     w *= tvmask
-    ni = n_i.astype(F32)
+    ni = n_i.astype(WORK)
     if ctx.l1:
         dist = np.abs(ni[:, 0:1] - al[0])
         dist += np.abs(ni[:, 1:2] - al[1])

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._denoise_kernels import (F32, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
+from ._denoise_kernels import (WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
                                _smallest_eigvec)
 
 #: Newton steps of the projection onto the fitted algebraic sphere
@@ -47,7 +47,7 @@ def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
     n = len(ctx.x)
     off = np.zeros((n, 3))
     ok = np.zeros(n, dtype=bool)
-    ft = np.ascontiguousarray(fit_n.T, dtype=F32)
+    ft = np.ascontiguousarray(fit_n.T, dtype=WORK)
 
     def kernel(s, e):
         u0, u, u4, good = _sphere_fit(ctx, ft, fit_n[s:e], s, e)
@@ -68,9 +68,9 @@ def _sphere_fit(ctx: _Ctx, ft, ri, s: int, e: int):
     idx = ctx.idx[s:e]
     nb = [np.take(ft[a], idx) for a in range(3)]
     dots = _dot(nb, ri)
-    sgn = np.where(dots < 0, F32(-1.0), F32(1.0))
+    sgn = np.where(dots < 0, WORK(-1.0), WORK(1.0))
     nb = [nb[a] * sgn for a in range(3)]
-    w = np.square((1.0 - np.abs(dots)) * F32(1.0 / (1.0 - ctx.cos_n)))
+    w = np.square((1.0 - np.abs(dots)) * WORK(1.0 / (1.0 - ctx.cos_n)))
     np.negative(w, out=w)
     np.exp(w, out=w)
     w *= theta

@@ -13,7 +13,7 @@ from functools import partial
 
 import numpy as np
 
-from ._denoise_kernels import (CHUNK, F32, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
+from ._denoise_kernels import (CHUNK, WORK, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
                                _run_chunks, _smallest_eigvec, _tau_irls, _tv)
 
 #: init passes followed by the candidate selection
@@ -60,15 +60,15 @@ def _eigen_pass(ctx: _Ctx, normals, tau, s: int, e: int, first: bool):
     if first:
         wsum = theta.sum(axis=1, keepdims=True)
         om = theta / wsum
-        dc = [da - _rowsum(om * da)[:, None].astype(F32) for da in d]
+        dc = [da - _rowsum(om * da)[:, None].astype(WORK) for da in d]
         t_new = np.zeros(e - s)
     else:
         n_i = normals[s:e]
         hgt = _dot(d, n_i)
         t_new = _tau_irls(hgt, tau[s:e], theta, ctx.sh2)
-        res = hgt - t_new.astype(F32)[:, None]
+        res = hgt - t_new.astype(WORK)[:, None]
         om = _eta(res, _psi(res, ctx.sh2), theta)
-        dc = [d[a] - (t_new * n_i[:, a]).astype(F32)[:, None] for a in range(3)]
+        dc = [d[a] - (t_new * n_i[:, a]).astype(WORK)[:, None] for a in range(3)]
     wd = [om * dc[a] for a in range(3)]
     cov = [_rowsum(wd[a] * dc[b]) for a, b in _UPPER]
     return _smallest_eigvec(*cov), t_new
@@ -80,12 +80,12 @@ def _select_candidates(ctx: _Ctx, normals, cols, s: int, e: int):
     d, _, valid, theta = _geometry(ctx, s, e)
     cand = np.concatenate([normals[s:e, None, :], normals[ctx.idx[s:e][:, cols]]], axis=1)
     ok = np.concatenate([np.ones((e - s, 1), bool), valid[:, cols]], axis=1)
-    c32 = cand.astype(F32)
+    c32 = cand.astype(WORK)
     hgt = (d[0][:, None, :] * c32[:, :, 0:1] + d[1][:, None, :] * c32[:, :, 1:2]
            + d[2][:, None, :] * c32[:, :, 2:3])
     th = theta[:, None, :]
     # τ from 0, as in Algorithm 4.1: the search favours planes near p_i
-    t = _tau_irls(hgt, np.zeros(hgt.shape[:2], F32), th, ctx.sh2).astype(F32)
+    t = _tau_irls(hgt, np.zeros(hgt.shape[:2], WORK), th, ctx.sh2).astype(WORK)
     res = hgt - t[..., None]
     # (4.3) itself redescends to 0 and would prefer a plane that misses every neighbour
     loss = ((1.0 - _psi(res, ctx.sh2)) * th).sum(axis=2, dtype=np.float64)
@@ -156,7 +156,7 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
     vnorm = np.zeros(n) if vn else None
     offset = np.zeros(n) if vn else None
     curv = np.zeros(n) if vn else None
-    nt = np.ascontiguousarray(normals.T, dtype=F32)
+    nt = np.ascontiguousarray(normals.T, dtype=WORK)
 
     def kernel(s, e):
         d, d2, valid, theta = _geometry(ctx, s, e)
@@ -164,11 +164,11 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
         n_i = normals[s:e]
         t_i = tau[s:e]
         nb = [np.take(nt[a], idx) for a in range(3)]
-        tvmask = valid.astype(F32)
+        tvmask = valid.astype(WORK)
         tvmask[:, 0] = 0.0  # ‖n_i − n_i‖ = 0: the point itself adds nothing
         cnt = _rowsum(tvmask)
         hgt = _dot(d, n_i)
-        res = hgt - t_i.astype(F32)[:, None]
+        res = hgt - t_i.astype(WORK)[:, None]
         psi = _psi(res, ctx.sh2)
         ares = np.abs(res)
         fid = _rowsum(ares * psi * theta)
@@ -189,10 +189,10 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
 
 def _variation(n_i, al, tvmask, cnt, sn2: float) -> np.ndarray:
     """V_n (4.17): mean of exp(−‖n_i − n_j‖²/(2σ_n²)) over the neighbours."""
-    diff2 = np.square(n_i[:, 0:1].astype(F32) - al[0])
-    diff2 += np.square(n_i[:, 1:2].astype(F32) - al[1])
-    diff2 += np.square(n_i[:, 2:3].astype(F32) - al[2])
-    wn = np.exp(diff2 * F32(-1.0 / (2.0 * sn2)))
+    diff2 = np.square(n_i[:, 0:1].astype(WORK) - al[0])
+    diff2 += np.square(n_i[:, 1:2].astype(WORK) - al[1])
+    diff2 += np.square(n_i[:, 2:3].astype(WORK) - al[2])
+    wn = np.exp(diff2 * WORK(-1.0 / (2.0 * sn2)))
     wn *= tvmask
     return np.where(cnt > 0, _rowsum(wn) / np.maximum(cnt, 1), 1.0)
 
@@ -218,13 +218,13 @@ def _tau_step(hgt, res, psi, theta, fid, t_i, sh2: float):
     den = _rowsum(eta)
     num = _rowsum(eta * hgt)
     t_new = np.where(den > 0, num / np.where(den > 0, den, 1.0), t_i)
-    res = hgt - t_new.astype(F32)[:, None]
+    res = hgt - t_new.astype(WORK)[:, None]
     psi = _psi(res, sh2)
     f_new = _rowsum(np.abs(res) * psi * theta)
     keep = f_new > fid
     if keep.any():
         t_new[keep] = t_i[keep]
-        res[keep] = hgt[keep] - t_i[keep].astype(F32)[:, None]
+        res[keep] = hgt[keep] - t_i[keep].astype(WORK)[:, None]
         psi[keep] = _psi(res[keep], sh2)
     return t_new, res, psi
 
@@ -239,8 +239,8 @@ def _normal_step(ctx: _Ctx, n_i, d, d2, res, psi, theta, al, w, cnt) -> np.ndarr
     gamma = np.where(lip > 0, 1.0 / np.where(lip > 0, lip, 1.0), 0.0)
     half = n_i - gamma[:, None] * grad
     # proximal step on d_ij = n_i − n_j, averaged over j
-    thr = w * (gamma * ctx.lam * cnt).astype(F32)[:, None]
-    h32 = half.astype(F32)
+    thr = w * (gamma * ctx.lam * cnt).astype(WORK)[:, None]
+    h32 = half.astype(WORK)
     dd = [h32[:, a:a + 1] - al[a] for a in range(3)]
     if ctx.l1:  # thesis (4.12): per component, n_j + soft(d) = n_i − clip(d, ±t)
         for a in range(3):
@@ -248,7 +248,7 @@ def _normal_step(ctx: _Ctx, n_i, d, d2, res, psi, theta, al, w, cnt) -> np.ndarr
             np.maximum(dd[a], -thr, out=dd[a])
     else:  # vector soft threshold: n_j + soft(d) = n_i − d·min(1, t/‖d‖)
         ln = np.sqrt(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2])
-        fac = np.minimum(thr / np.maximum(ln, F32(1e-30)), F32(1.0))
+        fac = np.minimum(thr / np.maximum(ln, WORK(1e-30)), WORK(1.0))
         for a in range(3):
             dd[a] *= fac
     cand = half - np.stack([_rowsum(dd[a]) for a in range(3)], axis=1) \

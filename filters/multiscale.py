@@ -277,10 +277,10 @@ def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
     d = Z.shape[1]
     L = max(1, min(d, cfg.n_atoms) // 10)
     # the training subsample is drawn here so that K-SVD codes only it
-    rng = np.random.default_rng(cfg.seed)
     m = len(Z)
-    train = np.arange(m) if m <= cfg.max_train else np.sort(
-        rng.choice(m, size=cfg.max_train, replace=False))
+    # the subsample and its order follow the (rotation-invariant) features, not
+    # the rows: a permuted or rotated cloud gets the same dictionary
+    train = sparse.content_order(Z, cfg.seed)[: cfg.max_train]
     D = sparse.ksvd(Z[train], cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
                     max_train=len(train), seed=cfg.seed).dictionary
     if cfg.coder == "omp":

@@ -187,7 +187,7 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         diff = (nb - mean[:, None, :]) * w[:, :, None]
         cov = np.matmul(diff.transpose(0, 2, 1), diff)
         _, vec = np.linalg.eigh(cov)
-        fr = vec[:, :, ::-1]  # e1, e2, normal
+        fr = _canonical_signs(vec[:, :, ::-1], diff)  # e1, e2, normal
         frames[s:e] = fr
         loc = np.matmul(nb - points[s:e, None, :], fr) / r
         u, v, z = loc[..., 0], loc[..., 1], loc[..., 2]
@@ -203,6 +203,24 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         # principal curvatures of the Hessian (small-slope approximation)
         total[s:e] = 2.0 * np.sqrt(a * a + c * c + 0.5 * b * b) / r
     return frames, gauss, total
+
+
+def _canonical_signs(fr: np.ndarray, diff: np.ndarray) -> np.ndarray:
+    """Fix the signs of the tangent axes by the data, not by the eigen-solver:
+    e1 and e2 point where the neighbourhood's third moment along them is
+    positive, and the normal completes a right-handed frame.  The rays of
+    (5.5) then turn with the cloud, so a rotated cloud gets the same dictionaries
+    in the same order."""
+    fr = fr.copy()
+    for a in (0, 1):
+        proj = np.einsum("ckd,cd->ck", diff, fr[:, :, a])
+        skew = np.einsum("ck,ck,ck->c", proj, proj, proj)
+        far = np.take_along_axis(proj, np.abs(proj).argmax(axis=1)[:, None], axis=1)[:, 0]
+        scale = np.einsum("ck,ck->c", proj, proj) ** 1.5
+        sign = np.where(np.abs(skew) > 1e-6 * scale, np.sign(skew), np.sign(far))
+        fr[:, :, a] *= np.where(sign == 0, 1.0, sign)[:, None]
+    fr[:, :, 2] = np.cross(fr[:, :, 0], fr[:, :, 1])
+    return fr
 
 
 def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,

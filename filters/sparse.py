@@ -561,9 +561,30 @@ def _update_atoms_numpy(D, sup, coef, E_all, pos, starts):
     return unused
 
 
+def content_order(X: np.ndarray, seed: int | None = 0, decimals: int = 6) -> np.ndarray:
+    """A permutation of the rows of ``X`` that depends on their content only.
+
+    Each row is rounded to ``decimals`` decimals and hashed (with ``seed``); the
+    rows sorted by hash are a pseudo-random order that does not change when the
+    rows are permuted, nor when their values move by rounding noise (a rotated
+    cloud's features), so a subsample taken as its first rows is the same set.
+    """
+    q = np.round(np.asarray(X, dtype=np.float64) * 10.0 ** decimals)
+    q = np.clip(q, -2.0**62, 2.0**62).astype(np.int64).view(np.uint64)
+    with np.errstate(over="ignore"):
+        h = np.full(len(q), np.uint64(0x9E3779B97F4A7C15) * np.uint64(
+            (seed or 0) + 1), dtype=np.uint64)
+        for j in range(q.shape[1]):  # splitmix64 over the columns
+            h = h ^ q[:, j]
+            h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            h = h ^ (h >> np.uint64(31))
+    return np.argsort(h, kind="stable")
+
+
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
          max_iter: int = 10, max_train: int = 20_000, seed: int | None = None,
-         code_all: bool = True) -> KSVDResult:
+         code_all: bool = True, order=None) -> KSVDResult:
     """K-SVD dictionary learning (Aharon, Elad & Bruckstein 2006; thesis Alg. 3.3).
 
     Parameters
@@ -588,6 +609,12 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         Code all ``m`` signals on the final dictionary; when False, ``codes``
         holds the training signals' codes only (rows in ``train_idx`` order),
         for callers that code with another solver afterwards.
+    order : (m,) int, optional
+        The order in which the signals are sampled and used: a permutation of
+        ``range(m)`` that depends on the signals, not on their row order; the
+        first ``max_train`` are the training subsample.  Default:
+        ``content_order(X, seed)``.  With it, permuting the rows of ``X`` does
+        not change the dictionary.
 
     Returns
     -------
@@ -623,8 +650,10 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
                         low=1, high=min(d, n_atoms))
     rng = np.random.default_rng(seed)
-    train_idx = np.arange(m) if m <= max_train else np.sort(
-        rng.choice(m, size=max_train, replace=False))
+    # the signals in an order of their own (not the caller's row order), so that
+    # permuting the rows of X gives the same dictionary
+    canon = content_order(X, seed) if order is None else np.asarray(order, dtype=np.int64)
+    train_idx = canon[:max_train]
     Xt = X[train_idx]
     mt = len(Xt)
     # initial dictionary: distinct random training signals, normalised
