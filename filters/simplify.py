@@ -126,14 +126,12 @@ def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=
 def saliency_scores(F: np.ndarray, *, n_atoms: int, alpha: float, max_iter: int,
                     max_train: int, seed):
     """K-SVD dictionary + Lasso codes → (Sf, nnz, residual), eqs (6.5)-(6.10)."""
-    # the training subsample follows what turns with the cloud and ignores the
-    # row order (surface variation, distance from the centroid), so a permuted or
-    # rotated cloud gets the same dictionary
-    pos = F[:, -3:]
-    invariant = np.c_[F[:, 3], np.linalg.norm(pos - pos.mean(axis=0), axis=1)]
+    # the training subsample is drawn by row (docs/decisions/simplify.md,
+    # "Training subsample by row"): a content-based order made the dictionary
+    # follow the rounding of coordinates far from the origin
     kres = sparse.ksvd(F, n_atoms, n_nonzero_coefs=min(3, F.shape[1], n_atoms),
                        max_iter=max_iter, max_train=max_train, seed=seed, code_all=False,
-                       order=sparse.content_order(invariant, seed))
+                       order="rows")
     log.info("simplify_sdbs: dictionary of %d atoms trained", n_atoms)
     codes = sparse.lasso_lars(F, kres.dictionary, alpha=alpha)
     nnz, res = sparse.code_length(codes, F, kres.dictionary)

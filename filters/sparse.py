@@ -609,8 +609,9 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         Code all ``m`` signals on the final dictionary; when False, ``codes``
         holds the training signals' codes only (rows in ``train_idx`` order),
         for callers that code with another solver afterwards.
-    order : (m,) int, optional
-        The order in which the signals are sampled and used: a permutation of
+    order : (m,) int or "rows", optional
+        The order in which the signals are sampled and used: ``"rows"`` for a
+        seeded random subsample in row order, or a permutation of
         ``range(m)`` that depends on the signals, not on their row order; the
         first ``max_train`` are the training subsample.  Default:
         ``content_order(X, seed)``.  With it, permuting the rows of ``X`` does
@@ -652,8 +653,12 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
     rng = np.random.default_rng(seed)
     # the signals in an order of their own (not the caller's row order), so that
     # permuting the rows of X gives the same dictionary
-    canon = content_order(X, seed) if order is None else np.asarray(order, dtype=np.int64)
-    train_idx = canon[:max_train]
+    if isinstance(order, str) and order == "rows":  # a seeded subsample, row order
+        train_idx = np.arange(m) if m <= max_train else np.sort(
+            rng.choice(m, size=max_train, replace=False))
+    else:
+        canon = content_order(X, seed) if order is None else np.asarray(order, np.int64)
+        train_idx = canon[:max_train]
     Xt = X[train_idx]
     mt = len(Xt)
     # initial dictionary: distinct random training signals, normalised
