@@ -121,7 +121,9 @@ def _files(seed):
 
 # --- clouds and parameters -----------------------------------------------------------
 
-def _odd_cloud(kind, n, scale, offset, g):
+def odd_cloud(kind, n, scale, offset, g):
+    """An odd cloud of ``n`` points: "sphere", "plane", "line", "clusters",
+    "far outlier" or "duplicates", scaled and moved; ``g`` a NumPy Generator."""
     if kind == "sphere":
         p = g.normal(size=(n, 3))
         p /= np.linalg.norm(p, axis=1)[:, None]
@@ -176,7 +178,7 @@ def _clouds(seed, quick):
         for kind in kinds:
             for n in sizes:
                 for scale, offset in ((1.0, 0.0), (1e-6, 0.0), (1e6, 5e6)):
-                    pts = _odd_cloud(kind, n, scale, offset, g)
+                    pts = odd_cloud(kind, n, scale, offset, g)
                     tally.setdefault(key, Counter())[
                         _classify_call(spec, pts, dict(spec.example))] += 1
     return tally
@@ -187,7 +189,7 @@ _ODD = (None, True, "3", float("nan"), float("inf"), -1e300, 1e-300, 0, -1, 10**
 
 def _parameters(seed):
     g = np.random.default_rng(seed)
-    pts = _odd_cloud("sphere", 400, 1.0, 0.0, g)
+    pts = odd_cloud("sphere", 400, 1.0, 0.0, g)
     tally: dict[str, Counter] = {}
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         key = f"odd parameters: {spec.command}"

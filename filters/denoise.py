@@ -145,7 +145,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     (h_ij = n_iᵀ(p_i − p_j); ψ, θ (4.3); w_ij (4.4)): n⁰ by (4.9), then IRLS τ steps
     (4.14) alternate with proximal normal steps (4.10)-(4.12); p_i ← p_i − τ_i n_i
     within ε (4.15); V_n < th marks edges (4.16)-(4.17), optionally corrected
-    (4.18)-(4.19).  Lengths are in units of h (mean distance to 6 neighbours).
+    (4.18)-(4.19).  Lengths are in units of the robust spacing h.
 
     Parameters
     ----------

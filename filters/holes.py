@@ -29,7 +29,7 @@ import numpy as np
 from ._border import (border_distance, border_gap, border_radius, strip_extent,
                       track_border)
 from ._params import Param, resolve_params, validate_params
-from .multiscale import (CodeLengths, Detection, ScoreConfig, code_lengths,
+from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, code_lengths,
                          otsu_threshold, prepare_cloud, scale_moments, scale_sizes)
 from .neighbors import average_spacing, build_tree
 
@@ -77,18 +77,7 @@ PARAMS = (
     Param("min_support", int, low=0, high=1000, unit="count"),
     Param("min_radius", float, low=0.0, high=1000.0, unit="h", optional=True),
     Param("row_angle", float, low=0.0, high=360.0, unit="deg"),
-    Param("n_scales", int, low=1, high=32, unit="count"),
-    Param("k_min", int, low=5, high=500, unit="count"),
-    Param("k_max", int, low=5, high=500, unit="count"),
-    Param("n_atoms", int, low=2, high=1000, unit="count"),
-    Param("coder", str, choices=("omp", "lasso_lars")),
-    Param("alpha", float, low=0.0, high=100.0, closed="right", advanced=True),
-    Param("tol", float, low=0.0, high=10.0, closed="right", advanced=True),
-    Param("score", str, choices=("count", "l1")),
-    Param("beta", float, low=0.0, high=1.0, optional=True),
-    Param("max_iter", int, low=1, high=200, unit="count", advanced=True),
-    Param("max_train", int, low=100, high=10_000_000, unit="count", advanced=True),
-    Param("seed", int, low=0, optional=True),
+    *SCORE_PARAMS,
 )
 
 

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from . import sparse
+from ._params import Param
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
 from .neighbors import CHUNK, build_tree, centered, knn
 
@@ -208,6 +209,23 @@ def standardise(F: np.ndarray) -> np.ndarray:
     scale = np.maximum(1.4826 * np.median(np.abs(F - med), axis=0), _MAD_FLOOR * std)
     return np.maximum((F - med) / np.where(scale > 0, scale, 1.0), 0.0)
 
+
+#: constraints of the shared stage's parameters, the tail of both detectors'
+#: declarations (each detector's signature holds its own defaults)
+SCORE_PARAMS = (
+    Param("n_scales", int, low=1, high=32, unit="count"),
+    Param("k_min", int, low=5, high=500, unit="count"),
+    Param("k_max", int, low=5, high=500, unit="count"),
+    Param("n_atoms", int, low=2, high=1000, unit="count"),
+    Param("coder", str, choices=("omp", "lasso_lars")),
+    Param("alpha", float, low=0.0, high=100.0, closed="right", advanced=True),
+    Param("tol", float, low=0.0, high=10.0, closed="right", advanced=True),
+    Param("score", str, choices=("count", "l1")),
+    Param("beta", float, low=0.0, high=1.0, optional=True),
+    Param("max_iter", int, low=1, high=200, unit="count", advanced=True),
+    Param("max_train", int, low=100, high=10_000_000, unit="count", advanced=True),
+    Param("seed", int, low=0, optional=True),
+)
 
 @dataclass(frozen=True)
 class ScoreConfig:

@@ -34,7 +34,7 @@ import numpy as np
 from pcprep.filters._validation import PointCloudError, as_points
 
 from . import registry
-from .convert import Cloud, MissingAttributeError, meshset_to_cloud  # noqa: F401
+from .convert import Cloud, MissingAttributeError, add_attribute, meshset_to_cloud  # noqa: F401
 
 
 def filter_list() -> list[str]:
@@ -169,7 +169,7 @@ def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dic
         mesh = ms.current_mesh()
         for key, values in kept.items():
             if not _has_attribute(mesh, key):
-                _add_attribute(mesh, key, values)
+                add_attribute(mesh, key, values)
         outputs.update(mesh_id=ms.current_mesh_id(), kept=len(idx), attributes=[])
         return outputs
     if spec.kind == "remove":
@@ -194,7 +194,7 @@ def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dic
     for key, values in out.attributes.items():
         if key not in cloud.attributes:
             free = _free_name(mesh, key)
-            _add_attribute(mesh, free, np.asarray(values))
+            add_attribute(mesh, free, np.asarray(values))
             outputs["attributes"].append(free)
     outputs["mesh_id"] = layer
     return outputs
@@ -306,13 +306,3 @@ def _free_name(mesh, name: str) -> str:
         k += 1
         key = f"{name}_{k}"
     return key
-
-
-def _add_attribute(mesh, key: str, values: np.ndarray) -> None:
-    from .convert import _scalar_columns
-
-    if values.ndim == 2 and values.shape[1] == 3:
-        mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), key)
-        return
-    for name, col in _scalar_columns(key, values):
-        mesh.add_vertex_custom_scalar_attribute(col, name)

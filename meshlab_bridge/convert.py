@@ -75,13 +75,20 @@ def cloud_to_mesh(cloud: Cloud):
         kwargs["v_scalar_array"] = np.ascontiguousarray(cloud.quality, dtype=np.float64)
     mesh = pymeshlab.Mesh(**kwargs)
     for name, values in cloud.attributes.items():
-        values = np.asarray(values)
-        if values.ndim == 2 and values.shape[1] == 3:
-            mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
-        else:
-            for key, col in _scalar_columns(name, values):
-                mesh.add_vertex_custom_scalar_attribute(col, key)
+        add_attribute(mesh, name, values)
     return mesh
+
+
+def add_attribute(mesh, name: str, values) -> None:
+    """Attach a per-point attribute to ``mesh``: an (n, 3) array as a custom point
+    attribute, anything else as float64 scalar columns (``name``, or ``name_k``
+    for the k-th column of a wider array)."""
+    values = np.asarray(values)
+    if values.ndim == 2 and values.shape[1] == 3:
+        mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
+        return
+    for key, col in _scalar_columns(name, values):
+        mesh.add_vertex_custom_scalar_attribute(col, key)
 
 
 def _scalar_columns(name: str, values: np.ndarray):
@@ -102,12 +109,7 @@ def add_cloud_layer(ms, cloud: Cloud, label: str = "") -> int:
     ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={})), label or cloud.label or "cloud")
     mesh = ms.current_mesh()
     for name, values in cloud.attributes.items():
-        values = np.asarray(values)
-        if values.ndim == 2 and values.shape[1] == 3:
-            mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
-        else:
-            for key, col in _scalar_columns(name, values):
-                mesh.add_vertex_custom_scalar_attribute(col, key)
+        add_attribute(mesh, name, values)
     return ms.current_mesh_id()
 
 

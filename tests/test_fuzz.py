@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcprep import InvalidParameterError, PointCloudError
+from pcprep.baselines.bench_robustness import odd_cloud
 from pcprep.meshlab_bridge import formats, registry
 from pcprep.meshlab_bridge.cloud import Cloud
 
@@ -94,21 +95,7 @@ def test_a_truncated_or_padded_binary_ply_is_refused(tmp_path_factory, cut, junk
 # --- clouds and parameters -----------------------------------------------------------
 
 def _odd_cloud(kind, n, scale, offset, seed):
-    g = np.random.default_rng(seed)
-    if kind == "sphere":
-        p = g.normal(size=(n, 3))
-        p /= np.linalg.norm(p, axis=1)[:, None]
-    elif kind == "plane":
-        p = np.c_[g.uniform(size=(n, 2)), np.zeros(n)]
-    elif kind == "line":
-        p = np.outer(g.uniform(size=n), [1.0, 2.0, 3.0])
-    elif kind == "clusters":
-        p = np.repeat(g.normal(size=(4, 3)) * 10, n // 4 + 1, axis=0)[:n]
-        p += 1e-3 * g.normal(size=p.shape)
-    else:  # "duplicates"
-        p = g.normal(size=(n, 3))
-        p[n // 2:] = p[: n - n // 2]
-    return p * scale + offset
+    return odd_cloud(kind, n, scale, offset, np.random.default_rng(seed))
 
 
 def _example(spec):
