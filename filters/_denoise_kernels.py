@@ -191,18 +191,27 @@ def _tv(ctx: _Ctx, n_i: np.ndarray, nb, tvmask):
 # ---------------------------------------------------------------------------
 # the neighbour array
 
-def _prepare(points, normals, k_max: int, func: str):
+def _prepare(points, normals, k_max: int, func: str, tile=None):
     """Validate the data, centre it, scale it to units of h and query ``k_max``
     neighbours per point (self first), in the k-d tree's leaf order.
 
     Returns ``(x / h, normals or None, centre, h, idx, perm)``; ``x`` and the
-    normals are permuted by ``perm``.
+    normals are permuted by ``perm``.  With ``tile = (centre, h, n_total)`` (a
+    tile of a larger cloud) the whole cloud's centre, h and neighbour count
+    (from its size ``n_total``) are used instead of the tile's own, the spread is
+    not checked (the caller checked the whole cloud), and a seventh value, the
+    distance to each row's last neighbour in units of h, is returned.
     """
-    x = as_points(points, func=func, min_points=SPACING_K + 1)
+    x = as_points(points, func=func, min_points=1 if tile else SPACING_K + 1)
     nrm = None if normals is None else as_normals(normals, len(x), func=func)
-    check_spread(x, func=func)
-    k = min(max(k_max, SPACING_K + 1), len(x))
-    x, centre = centered(x)
+    if tile is None:
+        check_spread(x, func=func)
+        k = min(max(k_max, SPACING_K + 1), len(x))
+        x, centre = centered(x)
+    else:
+        centre, h_all, n_total = tile
+        k = min(max(k_max, SPACING_K + 1), n_total, len(x))
+        x = x - centre
     tree = build_tree(x)
     # work in the tree's leaf order: neighbours then sit close in memory, which
     # makes the gathers of every pass cache-friendly
@@ -214,12 +223,19 @@ def _prepare(points, normals, k_max: int, func: str):
     idx = np.empty((len(x), k), dtype=itype)  # noqa: NPY-empty -- filled by chunks
     dsum = 0.0
     rows = np.zeros(len(x))
+    kth = np.zeros(len(x))
     for s in range(0, len(x), QUERY_CHUNK):  # chunked: float64 distances stay small
         dist, ii = tree.query(x[s:s + QUERY_CHUNK], k=k, workers=-1)
+        dist, ii = dist.reshape(len(ii), k), ii.reshape(len(ii), k)
         idx[s:s + QUERY_CHUNK] = ii
-        dsum += float(dist[:, 1:SPACING_K + 1].sum())
-        rows[s:s + QUERY_CHUNK] = dist[:, 1:SPACING_K + 1].mean(axis=1)
+        kth[s:s + QUERY_CHUNK] = dist[:, -1]
+        if tile is None:
+            dsum += float(dist[:, 1:SPACING_K + 1].sum())
+            rows[s:s + QUERY_CHUNK] = dist[:, 1:SPACING_K + 1].mean(axis=1)
     del tree, dist, ii
+    if tile is not None:
+        h = h_all
+        return x / h, None if nrm is None else nrm[perm], centre, h, idx, perm, kth / h
     h = spacing_from_rows(rows, dsum / (len(x) * SPACING_K))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError(

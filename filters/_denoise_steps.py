@@ -98,14 +98,60 @@ def _select_candidates(ctx: _Ctx, normals, cols, s: int, e: int):
 # ---------------------------------------------------------------------------
 # the inner loop
 
-def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float):
+class PlannedDecisions:
+    """The cloud-wide decisions of the inner loop in one tile of a tiled run.
+
+    The inner loop decides twice from sums over every point of the cloud (did
+    the total energy (4.5) rise; is the RMS move below ``tol``), which one tile
+    cannot know.  A tiled run therefore fixes the outcomes in advance
+    (``plan``, one bool per decision in the order they arise; False past its
+    end), and every tile records the sums over its core rows that the decision
+    would have read (``trace``: ``(kind, a, b, outcome)``).  Added over the tiles
+    the sums are the whole cloud's; the caller replays the decisions with them,
+    and where one disagrees with the plan it runs again with the corrected plan
+    (see meshlab_bridge/tiles.py).  ``None`` in place of this object: the
+    decisions are taken from the cloud itself, as in a one-piece run."""
+
+    def __init__(self, core: np.ndarray, plan=()):
+        self.core = np.asarray(core, dtype=bool)
+        self.plan = tuple(bool(b) for b in plan)
+        self.trace = []
+
+    def decide(self, kind: str, a: float, b: float) -> bool:
+        i = len(self.trace)
+        out = self.plan[i] if i < len(self.plan) else False
+        self.trace.append((kind, a, b, out))
+        return out
+
+
+def _total(e_i: np.ndarray, sync) -> float:
+    return float(e_i.sum()) if sync is None else float(e_i[sync.core].sum())
+
+
+def _rose(e_tot: float, before: float, sync) -> bool:
+    """Did the total energy rise (the whole cloud's, or the plan's answer)."""
+    if sync is None:
+        return e_tot > before
+    return sync.decide("rise", e_tot, before)
+
+
+def _settled(step: np.ndarray, tol: float, sync) -> bool:
+    """Is the RMS move of the tentative positions below ``tol``."""
+    sq = np.square(step).sum(axis=1)
+    if sync is None:
+        return float(np.sqrt(np.mean(sq))) < tol
+    return sync.decide("move", float(sq[sync.core].sum()), 0.0)
+
+
+def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float, sync=None):
     """Alternate τ and n steps at fixed positions (Algorithm 4.1, inner loop).
 
     τ starts at 0. Every pass returns the energy of the current state and a
     proposal; a proposal that raised the total energy (4.5) is undone and ends
     the loop. The loop also ends when the RMS change of the tentative positions
     p − τn falls below ``tol``. Returns normals, τ, (V_n, a, c) and the energy
-    history.
+    history.  ``sync`` (a :class:`PlannedDecisions`) takes the two cloud-wide
+    decisions for one tile of a tiled run.
     """
     n = len(ctx.x)
     tau = np.zeros(n)
@@ -114,8 +160,8 @@ def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float):
     for k in range(inner_iter + 1):
         last = k == inner_iter
         e_i, n_next, t_next, vn = _inner_pass(ctx, nrm, tau, propose=not last, vn=last)
-        e_tot = float(e_i.sum())
-        if hist and e_tot > hist[-1]:
+        e_tot = _total(e_i, sync)
+        if hist and _rose(e_tot, hist[-1], sync):
             nrm, tau = prev  # the parallel step raised (4.5): undo it and stop
             _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
             break
@@ -123,13 +169,12 @@ def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float):
         if last:
             break
         step = (ctx.x - t_next[:, None] * n_next) - (ctx.x - tau[:, None] * nrm)
-        move = float(np.sqrt(np.mean(np.square(step).sum(axis=1))))
         prev = (nrm, tau)
         nrm, tau = n_next, t_next
-        if move < tol:
+        if _settled(step, tol, sync):
             e_i, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
-            e_tot = float(e_i.sum())
-            if e_tot > hist[-1]:
+            e_tot = _total(e_i, sync)
+            if _rose(e_tot, hist[-1], sync):
                 nrm, tau = prev
                 _, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
             else:

@@ -25,11 +25,11 @@ import numpy as np
 from . import progress
 from ._denoise_kernels import _Ctx, _prepare
 from ._denoise_project import _pca_normals, _sphere_project
-from ._denoise_steps import _edge_correct, _init_normals, _inner_loop, _inner_pass, \
-    _smooth_curvature
+from ._denoise_steps import PlannedDecisions, _edge_correct, _init_normals, _inner_loop, \
+    _inner_pass, _smooth_curvature
 from ._params import Param, validate_params
 from ._validation import InvalidParameterError
-from .neighbors import orient_normals_mst
+from .neighbors import orient_normals_mst, tile_exact
 
 log = logging.getLogger("pcprep")
 
@@ -259,7 +259,7 @@ def _denoise(points, normals, cfg: _Config) -> DenoiseResult:
                          n_iter_run=cfg.n_iter, n_corrected=n_corr)
 
 
-def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config):
+def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config, sync=None):
     """The outer iterations of Algorithm 4.1, moving ``ctx.x`` in place.
 
     Returns the normals, V_n of the last iteration, the points frozen as curved
@@ -276,7 +276,7 @@ def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config):
     frozen_n = np.zeros((n, 3))
     with progress.step("denoise iterations", cfg.n_iter) as advance:
         for j in range(cfg.n_iter):
-            nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, cfg.inner_iter, cfg.tol)
+            nrm, tau, (vn, off, curv), hist_j = _inner_loop(ctx, nrm, cfg.inner_iter, cfg.tol, sync)
             history.append(hist_j)
             # position update (4.15), sign corrected, bounded by ε
             shift = off if cfg.curvature_offset else tau
@@ -329,6 +329,69 @@ def _context(x: np.ndarray, idx: np.ndarray, cfg: _Config) -> _Ctx:
                l1=cfg.tv_norm == "l1")
     ctx.refresh()
     return ctx
+
+
+def denoise_hops(params: dict) -> int:
+    """How many times a point's result reads its neighbours' intermediate values.
+
+    n⁰: the candidate selection reads the neighbours' normals (1; the eigen
+    passes read only their input positions).  Every outer iteration: each inner
+    pass reads the neighbours' positions and normals (at most ``inner_iter + 1``
+    passes, the undo or the ``tol`` re-check included), the curvature smoothing
+    their curvatures (1, once ``curved_iter`` is reached) and the edge correction
+    their normals (1, when on).  The final projection reads the neighbours'
+    normals once (1).  Defaults: 1 + 6 × (2 + 1 + 1) + 1 = 26.
+    """
+    cfg = replace(_DEFAULTS, **params)
+    per = cfg.inner_iter + 1 + 1 + int(cfg.edge_correction)
+    return 1 + cfg.n_iter * per + int(cfg.final_projection)
+
+
+def denoise_tile(points, normals, lo, hi, core, *, centre, h: float, n_total: int,
+                 hops: int, plan=(), **params) -> dict:
+    """One tile of a tiled :func:`denoise_l1_tv` run (meshlab_bridge/tiles.py).
+
+    ``points`` are every point of the cloud inside the box ``[lo, hi]`` (±inf on
+    the sides beyond which the cloud has nothing), ``core`` the rows whose
+    result is kept.  The whole cloud's ``centre``, ``h`` and size ``n_total``
+    replace the tile's own; the inner loop's cloud-wide decisions follow
+    ``plan`` (see :class:`PlannedDecisions`).  Returns a dict: ``exact`` (False:
+    a core row depends on points outside the box within ``hops`` neighbour
+    steps; nothing else is computed), ``points``, ``normals`` (MST-oriented
+    within the tile when ``normals`` is None), ``edge_score`` for every row,
+    ``sure`` (the rows whose result is exact) and ``trace``.  The parameters are
+    :func:`denoise_l1_tv`'s, checked by the caller.
+    """
+    func = "denoise_l1_tv"
+    cfg = replace(_DEFAULTS, **params)
+    k_all = min(max(cfg.k_max, 7), n_total)
+    if len(points) < k_all:
+        return {"exact": False}
+    x, hint, centre, h, idx, perm, kth = _prepare(points, normals, cfg.k_max, func,
+                                                  tile=(np.asarray(centre), h, n_total))
+    core = np.asarray(core, dtype=bool)[perm]
+    sure = tile_exact(x, idx, kth, (np.asarray(lo) - centre) / h,
+                      (np.asarray(hi) - centre) / h, hops)
+    if not sure[core].all():
+        return {"exact": False}
+    n = len(x)
+    x0 = x.copy()
+    ctx = _context(x, idx, cfg)
+    sync = PlannedDecisions(core, plan)
+    nrm, vn, frozen, _, _ = _iterate(ctx, x0, cfg, sync)
+    if cfg.final_projection:
+        _project_input(ctx, x0, nrm, vn, frozen, cfg)
+    if normals is None:
+        k = min(MST_K, idx.shape[1] - 1)
+        nrm = orient_normals_mst(ctx.x, nrm, k=k, neighbors=idx[:, 1:k + 1])
+    inv = np.empty(n, dtype=np.int64)  # noqa: NPY-empty -- a permutation fills it
+    inv[perm] = np.arange(n)
+    out_n = nrm[inv]
+    if hint is not None:
+        flip = np.einsum("ij,ij->i", out_n, hint[inv]) < 0
+        out_n[flip] *= -1.0
+    return {"exact": True, "points": ctx.x[inv] * h + centre, "normals": out_n,
+            "edge_score": vn[inv], "sure": sure[inv], "trace": tuple(sync.trace)}
 
 
 _ENERGY_NAMES = ("lambda_tv", "sigma_h", "sigma_d", "radius", "sigma_n_deg", "k_max")

@@ -372,3 +372,43 @@ def centered(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     c = 0.5 * (points.min(axis=0) + points.max(axis=0))
     return points - c, c
+
+
+def tile_exact(points: np.ndarray, idx: np.ndarray, reach: np.ndarray, lo, hi,
+               hops: int) -> np.ndarray:
+    """Rows of a tile whose result equals the one a run over the whole cloud gives.
+
+    A tile holds every point of the cloud inside the box ``[lo, hi]`` (a face at
+    ±inf: nothing of the cloud lies beyond it).  A row's own neighbour list is the
+    whole cloud's when the ball it was drawn from, of radius ``reach`` (the
+    distance to its last neighbour, or a query radius), lies inside the box; a
+    value that reads the neighbours' values ``hops`` times is exact when every row
+    within ``hops`` steps of the neighbour graph has an exact list.  This is the
+    check behind the halo of a tiled run: a core row that fails it means the halo
+    was too narrow.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    idx : (n, k) int
+        Neighbour lists (self included or not), indices into ``points``.
+    reach : (n,) float
+        Radius of the ball each row's list was drawn from.
+    lo, hi : (3,) float
+        The box the tile holds every point of.
+    hops : int
+        Times a result reads its neighbours' intermediate values.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    gap = np.minimum((points - np.asarray(lo)).min(axis=1),
+                     (np.asarray(hi) - points).min(axis=1))
+    ok = np.asarray(reach) < gap
+    for _ in range(hops):
+        nxt = ok.copy()
+        for s in range(0, len(ok), CHUNK):
+            nxt[s:s + CHUNK] &= ok[idx[s:s + CHUNK]].all(axis=1)
+        ok = nxt
+    return ok

@@ -23,7 +23,8 @@ from . import progress
 from ._params import Param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst, spacing_from_rows
+from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst, spacing_from_rows, \
+    tile_exact
 
 log = logging.getLogger("pcprep")
 
@@ -130,26 +131,38 @@ class _Hood:
         return out
 
 
-def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None
-                   ) -> tuple[_Hood, float]:
+def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
+                   tile=None) -> tuple[_Hood, float]:
     """Radius neighbourhoods (radius ``radius_h`` × h) capped at ``k_max`` points and
     the average spacing h, from ONE chunked k-NN query: h is the mean distance to
     the 6 nearest neighbours (columns 1-6 of the same query, thesis §4.5.1).
-    int32 indices and float32 distances keep a 1M-point cloud at ~250 MB."""
+    int32 indices and float32 distances keep a 1M-point cloud at ~250 MB.
+
+    ``tile = (h, n_total)``: the points are one tile of a cloud of ``n_total``
+    points whose spacing is ``h``; that h and the whole cloud's neighbour count
+    are used, and a third value, each row's distance to its last neighbour, is
+    returned."""
     tree = build_tree(points) if tree is None else tree
     n = len(points)
-    k = min(max(k_max, SPACING_K + 1), n)
+    k = min(max(k_max, SPACING_K + 1), n if tile is None else min(n, tile[1]))
     idx = np.zeros((n, k), dtype=np.int32)
     dist = np.zeros((n, k), dtype=np.float32)
+    kth = np.zeros(n)
     total = 0.0
     rows = np.zeros(n)
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
         d, j = tree.query(points[s:e], k=k, workers=-1)
+        d, j = d.reshape(e - s, k), j.reshape(e - s, k)
         idx[s:e] = j
         dist[s:e] = d
+        kth[s:e] = d[:, -1]
         total += float(d[:, 1:SPACING_K + 1].sum())
         rows[s:e] = d[:, 1:SPACING_K + 1].mean(axis=1)
+    if tile is not None:
+        h = tile[0]
+        r = np.float32(radius_h * h * (1.0 + 1e-6))
+        return _Hood(idx, np.maximum((dist <= r).sum(axis=1), 1)), h, kth
     h = spacing_from_rows(rows, total / (n * SPACING_K))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("saliency_sparse_mdl: every point coincides with its "
@@ -408,3 +421,62 @@ def _code(Fbar: np.ndarray, atoms: np.ndarray, alpha: float):
         resid[s:e] = _residual_norm(sol.residual)
         n_bad += int((~sol.converged).sum())
     return sparsity, resid, n_bad
+
+
+#: neighbour steps behind a point's saliency: the accumulation reads S_T of the
+#: neighbourhood (1); S_T reads the F̄ of the atoms, which are neighbours (1); F̄
+#: is a neighbourhood mean of F (1) and of d, itself read from F̄⁴ (2)
+SALIENCY_HOPS = 4
+
+
+def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage: str,
+                  hops: int = SALIENCY_HOPS, fbar_mean=None, reference=None,
+                  radius: float = 3.0,
+                  n_rays: int = 8, alpha: float = 0.9, measure: str = "residual",
+                  accumulation: str = "quantile", acc_quantile: float = 0.1,
+                  k_max: int = 32) -> dict:
+    """One tile of a tiled :func:`saliency_sparse_mdl` run (meshlab_bridge/tiles.py).
+
+    The filter has two cloud-wide values: F̄_g, the mean descriptor behind the
+    distinctness d (5.4), and the maxima that normalise S_T and the point
+    saliency.  ``stage="mean"`` returns the sums over the core rows of F̄⁴ (the
+    first four descriptor components) and the oriented normals of every row (their
+    signs are the tile's: MST within the tile); ``stage="code"``, given
+    ``fbar_mean`` (F̄_g) and ``reference = (row, normal)`` (the normal of one core
+    row in the signs F̄_g was summed in, which turns F̄_g into the tile's own
+    signs; None: they are the tile's), returns per row the raw
+    residual, ‖α‖₀ and the accumulated, not yet normalised S_T; the caller
+    divides by the cloud-wide maxima.  Both return ``exact`` (False: a core row
+    depends on points outside the box ``[lo, hi]``) and ``sure`` (exact rows).
+    """
+    pts = np.asarray(points, dtype=np.float64) - np.asarray(centre)
+    k_all = min(max(k_max, SPACING_K + 1), n_total)
+    if len(pts) < k_all:
+        return {"exact": False}
+    hood, h, kth = neighbourhoods(pts, radius, k_max, tile=(h, n_total))
+    r = radius * h
+    lo = np.asarray(lo) - centre
+    hi = np.asarray(hi) - centre
+    core = np.asarray(core, dtype=bool)
+    sure = tile_exact(pts, hood.idx, kth, lo, hi, hops if stage == "code" else 1)
+    if not sure[core].all():
+        return {"exact": False}
+    frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
+    atoms = _ray_atoms(pts, hood, frames, r, n_rays)
+    nrm = orient_normals_hood(pts, np.ascontiguousarray(frames[:, :, 2]), hood)
+    del frames
+    F4 = np.column_stack([nrm, gauss * r * r])
+    Fbar4 = hood.mean(F4)
+    if stage == "mean":
+        return {"exact": True, "sum": Fbar4[core].sum(axis=0), "normals": nrm,
+                "sure": sure}
+    fbar_mean = np.array(fbar_mean, dtype=np.float64)
+    if reference is not None and nrm[reference[0]] @ np.asarray(reference[1]) < 0:
+        fbar_mean[:3] *= -1.0
+    d = np.linalg.norm(Fbar4 - fbar_mean, axis=1)
+    Fbar = np.column_stack([Fbar4, hood.mean(d)])
+    sparsity, resid, _ = _code(Fbar, atoms, alpha)
+    raw = resid * sparsity if measure == "mdl" else resid
+    acc = hood.quantile(raw, acc_quantile) if accumulation == "quantile" else hood.mean(raw)
+    return {"exact": True, "residual": resid, "sparsity": sparsity, "accumulated": acc,
+            "sure": sure}

@@ -31,3 +31,18 @@ register(FilterSpec(
     uses_normals=True,
     example={"n_iter": 2},
 ))
+
+
+def tile_hops(params: dict) -> int:
+    """Dependency reach of denoise for tiled runs (meshlab_bridge/tiles.py), in
+    neighbour steps: how many times a point's result reads its neighbours'
+    intermediate values (``pcprep.filters.denoise.denoise_hops``: the candidate
+    selection of n⁰, ``inner_iter + 1`` inner passes, the curvature smoothing
+    and the optional edge correction per outer iteration, the final projection;
+    26 with the defaults).  One step spans at most a point's k_max-th neighbour
+    (about 3-4 h on a surface), so the halo starts at 26 × 4 h ≈ 100 h and the
+    tile itself checks that it was wide enough.  The normals' MST orientation is
+    not local: tiles are oriented within themselves and then made to agree."""
+    from pcprep.filters.denoise import denoise_hops
+
+    return denoise_hops(params)

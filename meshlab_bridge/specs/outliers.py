@@ -26,3 +26,12 @@ register(FilterSpec(
     kind="remove",
     index_field="keep_idx",
 ))
+
+
+def tile_hops(params: dict) -> int:
+    """Dependency reach of outlier removal for tiled runs: 0 neighbour steps
+    (a score reads only the point's own k-NN distances or radius count); the
+    reach is the k-th neighbour's distance or the radius.  The statistical
+    threshold (mean + std_ratio × std of every score) is cloud-wide: computed
+    once from the scores of all rows."""
+    return 0

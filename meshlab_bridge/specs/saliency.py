@@ -29,3 +29,15 @@ register(FilterSpec(
     scalar_field="saliency",
     uses_normals=True,
 ))
+
+
+def tile_hops(params: dict) -> int:
+    """Dependency reach of saliency for tiled runs, in neighbour steps
+    (``pcprep.filters.saliency.SALIENCY_HOPS`` = 4): the accumulation reads the
+    S_T of the neighbourhood, S_T the F̄ of the atoms (neighbours), F̄ the mean F
+    of a neighbourhood and the mean d, d the F̄⁴ of a neighbourhood.  One step
+    spans the k_max-th neighbour, at least the radius r (3 h).  F̄_g and the
+    normalising maxima are cloud-wide: fitted in a pass of sums, broadcast."""
+    from pcprep.filters.saliency import SALIENCY_HOPS
+
+    return SALIENCY_HOPS

@@ -1,0 +1,664 @@
+"""
+tiles.py
+--------
+Clouds larger than one process: spatial tiles with a halo, run on Dask.
+
+The cloud's positions are streamed once into a memory-mapped (n, 3) float64
+array in a scratch folder (``ingest``); a uniform grid over its bounding box
+cuts it into tiles of about ``target`` core points (``TileIndex``); every tile
+is sent with the points of its box grown by a halo of ``w`` (its *extended*
+region) to a Dask worker, which runs the filter's tile function and returns the
+results of its core rows.  Every row lies in exactly one core.
+
+Exactness.  A filter declares how many times a point's result reads its
+neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
+``hops`` × ``HOP_H`` × h, and the tile function checks it
+(``pcprep.filters.neighbors.tile_exact``): a core row whose neighbourhood chain
+leaves the box makes the tile come back "not exact", and it is run again with a
+halo ``GROW`` times wider.  Cloud-wide values are fitted once and broadcast:
+h in a first pass over the tiles (the exact value, not a sample's: a
+subsample's spacing is larger), the centre from the bounding box, F̄_g and the
+maxima of saliency by a pass of sums, the statistical outlier threshold from
+the scores of every row, and denoise's two inner-loop decisions by a plan
+checked against the cloud-wide sums (``_denoise``).  docs/decisions/scale.md
+has the derivations.
+
+Engine: ``dask.distributed``.  ``client=None`` starts a ``LocalCluster`` sized
+by ``workers`` and ``memory_budget`` (closed at the end); ``scheduler`` attaches
+to a running one.  Tasks carry their points, so any cluster works; a task lost
+with its worker is run again by the scheduler, and every core row is written
+exactly once (checked).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from pcprep.filters import progress
+from pcprep.filters._validation import InvalidParameterError, PointCloudError
+from pcprep.filters.neighbors import SPACING_K, build_tree, spacing_from_rows, tile_exact
+
+log = logging.getLogger("pcprep")
+
+#: rows per chunk of the streamed passes
+CHUNK = 1 << 20
+#: first guess of one neighbour step, in units of h (a 32-NN radius on a surface)
+HOP_H = 4.0
+#: a tile whose halo proved too narrow runs again with a halo this many times wider
+GROW = 1.6
+#: bytes per extended point a tile's task needs at most (denoise: neighbour lists,
+#: its state and the chunk buffers), for ``tiles="auto"``
+BYTES_PER_POINT = 4_000
+#: tasks in flight per worker (the driver holds their inputs)
+IN_FLIGHT = 2
+
+
+# ---------------------------------------------------------------------------
+# the cloud on disk
+
+
+@dataclass
+class Source:
+    """A cloud's positions on disk: ``xyz`` an (n, 3) float64 memory map."""
+
+    xyz: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    path: str | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.xyz)
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The bounding-box centre, the origin every filter works about."""
+        return 0.5 * (self.lo + self.hi)
+
+
+def ingest(chunks, n: int, scratch: str) -> Source:
+    """Write streamed ``(start, xyz)`` chunks into ``scratch/xyz.npy``; refuse
+    non-finite rows (naming the first ones)."""
+    xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz.npy"), mode="w+",
+                                    dtype=np.float64, shape=(n, 3))
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for start, block in chunks:
+        block = np.asarray(block, dtype=np.float64)
+        bad = ~np.isfinite(block).all(axis=1)
+        if bad.any():
+            rows = (np.flatnonzero(bad)[:10] + start).tolist()
+            raise PointCloudError(f"non-finite coordinates in rows {rows}")
+        xyz[start:start + len(block)] = block
+        if len(block):
+            lo = np.minimum(lo, block.min(axis=0))
+            hi = np.maximum(hi, block.max(axis=0))
+    xyz.flush()
+    return Source(xyz, lo, hi)
+
+
+def source_from_array(points: np.ndarray, scratch: str) -> Source:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        raise PointCloudError(f"points must be a non-empty (n, 3) array, got {points.shape}")
+    return ingest(((s, points[s:s + CHUNK]) for s in range(0, len(points), CHUNK)),
+                  len(points), scratch)
+
+
+# ---------------------------------------------------------------------------
+# the tile index
+
+
+@dataclass
+class TileIndex:
+    """A uniform grid over the bounding box; the non-empty cells are the tiles.
+
+    ``order`` lists the rows cell by cell (input order within a cell), and
+    ``start[c]:start[c + 1]`` are cell ``c``'s.
+    """
+
+    lo: np.ndarray
+    side: float
+    shape: tuple
+    order: np.ndarray
+    start: np.ndarray
+    cells: np.ndarray  # non-empty cell ids
+    coords: np.ndarray  # their (i, j, k)
+
+    def cell_box(self, c: int):
+        ijk = np.array(np.unravel_index(c, self.shape))
+        lo = self.lo + ijk * self.side
+        return lo, lo + self.side
+
+    def core_rows(self, c: int) -> np.ndarray:
+        return np.asarray(self.order[self.start[c]:self.start[c + 1]])
+
+
+def _cell_ids(xyz, lo, side, shape) -> np.ndarray:
+    ijk = np.floor((xyz - lo) / side).astype(np.int64)
+    ijk = np.clip(ijk, 0, np.array(shape) - 1)
+    return np.ravel_multi_index(ijk.T, shape)
+
+
+def _grid_shape(src: Source, side: float) -> tuple:
+    ext = np.maximum(src.hi - src.lo, 1e-300)
+    return tuple(int(v) for v in np.maximum(1, np.ceil(ext / side)))
+
+
+def build_index(src: Source, target: int, scratch: str) -> TileIndex:
+    """Tiles of about ``target`` core points: the grid side is chosen on a
+    subsample (every m-th row) so that the non-empty cells hold ``target``
+    points on average; then one pass counts the rows per cell and a second
+    writes their order."""
+    n = src.n
+    ext = float(np.max(src.hi - src.lo))
+    if n <= target or ext <= 0:
+        side = max(ext, 1e-300) * (1 + 1e-9)
+    else:
+        step = max(1, n // 200_000)
+        sample = np.asarray(src.xyz[::step])
+        lo_s, hi_s = math.log(ext / 2000.0), math.log(ext * 1.0001)
+        for _ in range(40):  # bisection on log(side): mean occupancy ≈ target
+            mid = 0.5 * (lo_s + hi_s)
+            side = math.exp(mid)
+            shape = _grid_shape(src, side)
+            occupied = len(np.unique(_cell_ids(sample, src.lo, side, shape)))
+            if n / occupied > target:
+                hi_s = mid
+            else:
+                lo_s = mid
+        side = math.exp(0.5 * (lo_s + hi_s))
+    shape = _grid_shape(src, side)
+    ncell = int(np.prod(shape))
+    counts = np.zeros(ncell, dtype=np.int64)
+    for s in range(0, n, CHUNK):
+        counts += np.bincount(_cell_ids(src.xyz[s:s + CHUNK], src.lo, side, shape),
+                              minlength=ncell)
+    start = np.zeros(ncell + 1, dtype=np.int64)
+    np.cumsum(counts, out=start[1:])
+    order = np.lib.format.open_memmap(os.path.join(scratch, "order.npy"), mode="w+",
+                                      dtype=np.int64, shape=(n,))
+    fill = start[:-1].copy()
+    for s in range(0, n, CHUNK):
+        ids = _cell_ids(src.xyz[s:s + CHUNK], src.lo, side, shape)
+        srt = np.argsort(ids, kind="stable")
+        ids_s = ids[srt]
+        uniq, first, cnt = np.unique(ids_s, return_index=True, return_counts=True)
+        rows = srt + s
+        for c, f, m in zip(uniq, first, cnt):
+            order[fill[c]:fill[c] + m] = rows[f:f + m]
+            fill[c] += m
+    cells = np.flatnonzero(counts)
+    coords = np.array(np.unravel_index(cells, shape)).T
+    return TileIndex(src.lo.copy(), float(side), shape, order, start, cells, coords)
+
+
+def extended(src: Source, index: TileIndex, c: int, halo: float):
+    """The rows of the box of cell ``c`` grown by ``halo`` (the cloud's outer
+    sides stay open: ±inf), their positions, the core mask and the box."""
+    lo, hi = index.cell_box(c)
+    blo, bhi = lo - halo, hi + halo
+    blo = np.where(blo <= src.lo, -np.inf, blo)
+    bhi = np.where(bhi >= src.hi, np.inf, bhi)
+    m = int(math.ceil(halo / index.side))
+    ijk = np.array(np.unravel_index(c, index.shape))
+    near = np.abs(index.coords - ijk).max(axis=1) <= m
+    parts = []
+    for cc in index.cells[near]:
+        rows = index.core_rows(int(cc))
+        if cc != c:
+            p = np.asarray(src.xyz[rows])
+            inside = ((p >= blo) & (p <= bhi)).all(axis=1)
+            rows = rows[inside]
+        parts.append(rows)
+    rows = np.sort(np.concatenate(parts))
+    core = np.isin(rows, index.core_rows(c), assume_unique=True)
+    return rows, np.asarray(src.xyz[rows]), core, blo, bhi
+
+
+# ---------------------------------------------------------------------------
+# the engine
+
+
+@contextmanager
+def dask_client(client=None, *, workers: int | None = None, scheduler: str | None = None,
+                memory_budget: str | int | None = None):
+    """The client to run on: ``client`` as given, one attached to ``scheduler``,
+    or a new ``LocalCluster`` of ``workers`` processes (default: the cores) with
+    ``memory_budget`` per worker (default: the machine's memory shared out);
+    what this starts it closes."""
+    if client is not None:
+        yield client
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        with Client(scheduler) as c:
+            yield c
+        return
+    nw = workers or os.cpu_count() or 1
+    with LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
+                      memory_limit=memory_budget or "auto", dashboard_address=":0",
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
+        log.info("dask: %d local worker(s); dashboard %s", nw, c.dashboard_link)
+        yield c
+
+
+def tile_target(tiles, client, n: int) -> int:
+    """Core points per tile: ``tiles`` as an int, or from the memory budget
+    (``"auto"``): a task's extended region (about twice its core) must fit a
+    worker's memory limit ``BYTES_PER_POINT`` bytes per point."""
+    if tiles is None or tiles == "auto":
+        limits = [w.get("memory_limit") or 0
+                  for w in client.scheduler_info()["workers"].values()]
+        budget = min(limits) if limits and min(limits) > 0 else 4 << 30
+        return int(max(10_000, min(n, budget // (2 * BYTES_PER_POINT))))
+    t = int(tiles)
+    if t < 1:
+        raise InvalidParameterError(f"tiles must be 'auto' or a positive count, got {tiles!r}")
+    return t
+
+
+class _Runner:
+    """One pass over the tiles: submit, collect, re-run a tile whose halo was
+    too narrow with a wider one, and check that every core row came once."""
+
+    def __init__(self, client, src: Source, index: TileIndex, on_result=None):
+        self.client, self.src, self.index = client, src, index
+        self.on_result = on_result
+        self.halo = {}  # cell -> the halo that proved wide enough
+
+    def run(self, label: str, fn, halo: float, args: dict, collect, per_tile=None) -> None:
+        """``fn(points, lo, hi, core, **args, **per_tile(rows, core))`` on every
+        tile; ``collect(rows, core, result)`` gets each exact result (rows = the
+        extended rows)."""
+        from dask.distributed import as_completed
+
+        cells = [int(c) for c in self.index.cells]
+        width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
+        seen = np.zeros(self.src.n, dtype=np.int8)
+        queue = list(cells)
+        limit = IN_FLIGHT * max(1, len(self.client.scheduler_info()["workers"]))
+        futures = as_completed()
+        meta = {}
+        with progress.step(f"{label} tiles", len(cells)) as advance:
+            def submit():
+                while queue and futures.count() < limit:
+                    c = queue.pop(0)
+                    rows, pts, core, lo, hi = extended(self.src, self.index, c, width[c])
+                    more = {} if per_tile is None else per_tile(rows, core)
+                    fut = self.client.submit(fn, pts, lo, hi, core, pure=False, **args,
+                                             **more)
+                    meta[fut.key] = (c, rows, core)
+                    futures.add(fut)
+            submit()
+            for fut in futures:
+                c, rows, core = meta.pop(fut.key)
+                res = fut.result()
+                del fut
+                if not res["exact"]:
+                    if np.isinf(self.src.hi - self.src.lo).any() or \
+                            width[c] > 4 * float(np.max(self.src.hi - self.src.lo)):
+                        raise PointCloudError(f"{label}: tile {c} cannot be made exact")
+                    width[c] *= GROW
+                    log.debug("%s: tile %d: halo widened to %.4g", label, c, width[c])
+                    queue.insert(0, c)
+                else:
+                    self.halo[c] = width[c]
+                    seen[rows[core]] += 1
+                    collect(rows, core, res)
+                    advance()
+                    if self.on_result is not None:
+                        self.on_result(label, c)
+                submit()
+        if not (seen == 1).all():
+            bad = np.flatnonzero(seen != 1)[:10].tolist()
+            raise RuntimeError(f"{label}: rows {bad} were written {sorted(set(seen[bad]))} "
+                               "times")
+
+
+# ---------------------------------------------------------------------------
+# tile functions (run on the workers)
+
+
+def _spacing_tile(points, lo, hi, core, *, centre, n_total):
+    """Mean distance to the SPACING_K nearest neighbours of every row (pass 1: h)."""
+    x = points - centre
+    k = SPACING_K + 1
+    if len(x) < min(k, n_total):
+        return {"exact": False}
+    k = min(k, len(x))
+    d, idx = build_tree(x).query(x, k=k, workers=1)
+    d, idx = d.reshape(len(x), k), idx.reshape(len(x), k)
+    sure = tile_exact(x, idx, d[:, -1], lo - centre, hi - centre, 0)
+    if not sure[core].all():
+        return {"exact": False}
+    return {"exact": True, "rows": d[:, 1:].mean(axis=1)}
+
+
+def _outlier_tile(points, lo, hi, core, *, centre, h, n_total, method, k, radius,
+                  min_neighbors, std_ratio):
+    x = points - centre
+    kk = max(k, SPACING_K) + 1
+    if len(x) < min(kk, n_total):
+        return {"exact": False}
+    tree = build_tree(x)
+    d, idx = tree.query(x, k=kk, workers=1)
+    if method == "statistical":
+        reach, score = d[:, -1], d[:, 1:k + 1].mean(axis=1) / h
+    else:
+        reach = np.maximum(d[:, -1], radius * h)
+        counts = tree.query_ball_point(x, r=radius * h, return_length=True, workers=1)
+        score = np.asarray(counts, dtype=np.float64) - 1.0
+    sure = tile_exact(x, idx, reach, lo - centre, hi - centre, 0)
+    if not sure[core].all():
+        return {"exact": False}
+    return {"exact": True, "score": score}
+
+
+# ---------------------------------------------------------------------------
+# the filters, tiled
+
+
+@dataclass
+class TiledResult:
+    """Per-row results of a tiled run, in input order (arrays or memory maps),
+    and the run's facts (``stats``: tiles, passes, re-runs, halos)."""
+
+    fields: dict
+    h: float
+    stats: dict
+
+
+def run_tiled(name: str, points=None, normals=None, *, source: Source | None = None,
+              params: dict | None = None, client=None, tiles="auto",
+              workers: int | None = None, scheduler: str | None = None,
+              memory_budget=None, scratch: str | None = None, on_result=None
+              ) -> TiledResult:
+    """Run registered filter ``name`` tile by tile on Dask; the result of every
+    row is the one a run over the whole cloud gives (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        A registered filter (``apply_coord_denoise_l1_tv``, its command
+        ``denoise``, …) that has a tiled form (``specs/*`` declare ``TILED``).
+    points : (n, 3) float, optional
+        The cloud, or ``source`` (streamed positions on disk).
+    normals : (n, 3) float, optional
+        Input normals (an orientation hint for denoise).
+    params : dict
+        The filter's parameters (checked as the filter checks them).
+    client : dask.distributed.Client, optional
+        Run on this client; else ``scheduler`` (address) or a new local cluster
+        of ``workers`` processes with ``memory_budget`` each.
+    tiles : "auto" or int
+        Core points per tile (``auto``: from the memory budget).
+    on_result : callable, optional
+        ``on_result(pass_label, cell)`` after each tile's result (tests).
+    """
+    from . import registry
+
+    spec = _spec(registry, name)
+    resolved = spec.resolve(dict(params or {}))
+    own = scratch is None
+    scratch = tempfile.mkdtemp(prefix="pcprep-tiles-") if own else scratch
+    try:
+        if source is None:
+            source = source_from_array(points, scratch)
+        with dask_client(client, workers=workers, scheduler=scheduler,
+                         memory_budget=memory_budget) as cl:
+            target = tile_target(tiles, cl, source.n)
+            index = build_index(source, target, scratch)
+            log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
+                     len(index.cells), index.side)
+            runner = _Runner(cl, source, index, on_result)
+            h = _fit_spacing(runner, source, index)
+            family = _FAMILIES[spec.command]
+            out = family(runner, source, normals, h, resolved, scratch)
+            out.stats.update(tiles=len(index.cells), grid_side=index.side, target=target,
+                             halo_max=max(runner.halo.values()) if runner.halo else 0.0)
+            return out
+    finally:
+        if own:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _spec(registry, name: str):
+    specs = registry.load_all()
+    for s in specs.values():
+        if name in (s.name, s.command):
+            if s.command not in _FAMILIES:
+                raise InvalidParameterError(
+                    f"{s.command}: no tiled form (tiled: {', '.join(sorted(_FAMILIES))})")
+            return s
+    raise InvalidParameterError(f"unknown filter {name!r}")
+
+
+def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
+    """h over the whole cloud from every row's mean 6-NN distance (pass 1)."""
+    rows6 = np.zeros(src.n)
+
+    def collect(rows, core, res):
+        rows6[rows[core]] = res["rows"][core]
+
+    halo0 = 0.05 * index.side
+    runner.run("spacing", _spacing_tile, halo0, {"centre": src.centre, "n_total": src.n},
+               collect)
+    runner.halo.clear()
+    h = spacing_from_rows(rows6)
+    if not np.isfinite(h) or h <= 0:
+        raise PointCloudError("every point coincides with its neighbours (h = 0)")
+    return h
+
+
+def _outliers(runner, src, normals, h, prm, scratch) -> TiledResult:
+    from .specs.outliers import tile_hops
+
+    score = np.zeros(src.n)
+
+    def collect(rows, core, res):
+        score[rows[core]] = res["score"][core]
+
+    args = dict(centre=src.centre, h=h, n_total=src.n, **prm)
+    reach = (prm["radius"] if prm["method"] == "radius" else 2.0) + tile_hops(prm)
+    runner.run("outliers", _outlier_tile, reach * h, args, collect)
+    if prm["method"] == "statistical":
+        threshold = float(score.mean() + prm["std_ratio"] * score.std())
+        out = score > threshold
+    else:
+        threshold = float(prm["min_neighbors"])
+        out = score < threshold
+    return TiledResult({"keep_idx": np.flatnonzero(~out), "removed_idx": np.flatnonzero(out),
+                        "score": score}, h, {"threshold": threshold, "passes": 2})
+
+
+def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
+    """Tiled denoise: the inner loop's cloud-wide decisions follow a plan (all
+    "no": the energy did not rise, the move is not below tol); the sums every
+    tile reports are added and the decisions replayed; at the first that
+    disagrees the plan is corrected and the run repeated."""
+    from .specs.denoise import tile_hops
+
+    hops = tile_hops(prm)
+    n = src.n
+    pos = np.zeros((n, 3))
+    nrm = np.zeros((n, 3))
+    score = np.zeros(n)
+    plan: list = []
+    runs = 0
+    while True:
+        runs += 1
+        traces = []
+        align = []
+
+        def collect(rows, core, res):
+            pos[rows[core]] = res["points"][core]
+            nrm[rows[core]] = res["normals"][core]
+            score[rows[core]] = res["edge_score"][core]
+            traces.append(res["trace"])
+            align.append(_halo_sample(rows, core, res))
+
+        args = dict(centre=src.centre, h=h, n_total=n, hops=hops, plan=tuple(plan), **prm)
+        given = None if normals is None else np.asarray(normals, dtype=np.float64)
+        runner.run("denoise", _denoise_task, hops * HOP_H * h, args, collect,
+                   lambda rows, core: {"normals": None if given is None else given[rows]})
+        wrong = _replay(traces, plan, n, prm["tol"])
+        if wrong is None:
+            break
+        plan = wrong
+        log.info("denoise: the plan missed decision %d; running again", len(plan) - 1)
+    flips = 0
+    if normals is None:
+        flips = _align_signs(runner, src, nrm, align)
+    edge = score < prm["edge_threshold"]
+    return TiledResult({"points": pos, "normals": nrm, "edge_mask": edge, "edge_score": score},
+                       h, {"passes": 1 + runs, "denoise_runs": runs, "decisions": len(traces[0])
+                           if traces else 0, "tiles_flipped": flips})
+
+
+def _denoise_task(points, lo, hi, core, *, normals, **kw):
+    from pcprep.filters.denoise import denoise_tile
+
+    return denoise_tile(points, normals, lo, hi, core, **kw)
+
+
+def _replay(traces, plan, n: int, tol: float):
+    """The decisions the whole cloud takes from the tiles' summed traces; None
+    if they match the plan, else the corrected plan up to the first mismatch."""
+    if not traces:
+        return None
+    length = len(traces[0])
+    if any(len(t) != length for t in traces):
+        raise RuntimeError("denoise: tiles took different decision paths")
+    for i in range(length):
+        kind, _, _, used = traces[0][i]
+        a = sum(t[i][1] for t in traces)
+        b = sum(t[i][2] for t in traces)
+        truth = a > b if kind == "rise" else math.sqrt(a / n) < tol
+        if truth != used:
+            return [d[3] for d in traces[0][:i]] + [truth]
+    return None
+
+
+def _halo_sample(rows, core, res, most: int = 4096):
+    """Rows outside the core whose result is exact, with the tile's normals:
+    the overlap two tiles' orientations are compared on."""
+    keep = np.flatnonzero(res["sure"] & ~core)
+    if len(keep) > most:
+        keep = keep[np.linspace(0, len(keep) - 1, most).astype(np.int64)]
+    return rows[core], rows[keep], res["normals"][keep]
+
+
+def _align_signs(runner, src, nrm, align) -> int:
+    """Make the tiles' MST orientations agree: tiles that share exact rows vote
+    on their relative sign; a maximum spanning tree of the votes, rooted at the
+    tile that holds the highest point (whose own MST made its normal point to
+    +z, as a one-piece run does), fixes a sign per tile.  Returns the number of
+    tiles flipped."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
+    t = len(align)
+    owner = np.full(src.n, -1, dtype=np.int64)
+    for i, (core_rows, _, _) in enumerate(align):
+        owner[core_rows] = i
+    vi, vj, vv = [], [], []
+    for i, (_, rows, nn) in enumerate(align):
+        if len(rows) == 0:
+            continue
+        j = owner[rows]
+        s = np.sign(np.einsum("ij,ij->i", nn, nrm[rows]))
+        for jj in np.unique(j):
+            if jj != i:
+                vi.append(i)
+                vj.append(int(jj))
+                vv.append(float(s[j == jj].sum()))
+    flip = np.ones(t)
+    if vv:
+        vv = np.array(vv)
+        m = coo_matrix((vv, (vi, vj)), shape=(t, t)).tocsr()
+        m = m + m.T
+        big = float(np.abs(m.data).max()) + 1.0
+        w = m.copy()
+        w.data = big - np.abs(w.data) + 1e-9  # max |vote| spanning tree
+        tree = minimum_spanning_tree(w)
+        top = int(np.argmax(np.asarray(src.xyz[:, 2]))) if src.n else 0
+        root = int(owner[top])
+        order, pred = breadth_first_order(tree, root, directed=False,
+                                          return_predecessors=True)
+        for v in order[1:]:
+            flip[v] = flip[pred[v]] * (1.0 if m[v, pred[v]] >= 0 else -1.0)
+    for i, (core_rows, _, _) in enumerate(align):
+        if flip[i] < 0:
+            nrm[core_rows] *= -1.0
+    return int((flip < 0).sum())
+
+
+def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
+    """Tiled saliency: a pass of sums gives F̄_g (the normal block after the
+    tiles' orientations are made to agree); the coding pass gives the raw
+    residuals and accumulations; the cloud-wide maxima normalise them."""
+    from pcprep.filters.saliency import saliency_tile
+
+    from .specs.saliency import tile_hops
+
+    n = src.n
+    nrm = np.zeros((n, 3))
+    sums, align, cells = [], [], []
+
+    first = []
+
+    def collect_mean(rows, core, res):
+        nrm[rows[core]] = res["normals"][core]
+        first.append(res["normals"][np.flatnonzero(core)[0]].copy())
+        sums.append(res["sum"])
+        align.append(_halo_sample(rows, core, res))
+        cells.append(rows[core])
+
+    base = dict(centre=src.centre, h=h, n_total=n, **prm)
+    hops = tile_hops(prm)
+    halo = (hops + 1) * max(prm["radius"], HOP_H) * h
+    runner.run("saliency mean", saliency_tile, halo, dict(base, stage="mean", hops=hops),
+               collect_mean)
+    _align_signs(runner, src, nrm, align)
+    tot = np.zeros(4)
+    for i, rows in enumerate(cells):  # the tile's sums in the aligned signs
+        sg = float(np.sign(nrm[rows[0]] @ first[i]))
+        tot += np.r_[sg * sums[i][:3], sums[i][3]]
+    fbar_g = tot / n
+    resid = np.zeros(n)
+    sparsity = np.zeros(n, dtype=np.int64)
+    acc = np.zeros(n)
+
+    def collect_code(rows, core, res):
+        resid[rows[core]] = res["residual"][core]
+        sparsity[rows[core]] = res["sparsity"][core]
+        acc[rows[core]] = res["accumulated"][core]
+
+    def reference(rows, core):  # one core row's aligned normal fixes the tile's signs
+        i = int(np.flatnonzero(core)[0])
+        return {"reference": (i, nrm[rows[i]])}
+
+    runner.run("saliency code", saliency_tile, halo,
+               dict(base, stage="code", hops=hops, fbar_mean=fbar_g), collect_code, reference)
+    top_r = float(resid.max())
+    s_t = resid / top_r if top_r > 0 else np.zeros(n)
+    if prm["measure"] == "mdl":
+        top_s = float(sparsity.max())
+        s_t = (sparsity / top_s if top_s > 0 else np.zeros(n)) * s_t
+    top_a = float(acc.max())
+    sal = acc / top_a if top_a > 0 else np.zeros(n)
+    return TiledResult({"saliency": sal, "neighbourhood_saliency": s_t, "sparsity": sparsity,
+                        "residual": resid, "normals": nrm}, h, {"passes": 3})
+
+
+_FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency}
