@@ -153,14 +153,18 @@ def _grid_shape(src: Source, side: float) -> tuple:
     return tuple(int(v) for v in np.maximum(1, np.ceil(ext / side)))
 
 
-def build_index(src: Source, target: int, scratch: str) -> TileIndex:
+def build_index(src: Source, target: int, scratch: str, side: float | None = None
+                ) -> TileIndex:
     """Tiles of about ``target`` core points: the grid side is chosen on a
     subsample (every m-th row) so that the non-empty cells hold ``target``
     points on average; then one pass counts the rows per cell and a second
     writes their order."""
     n = src.n
     ext = float(np.max(src.hi - src.lo))
-    if n <= target or ext <= 0:
+    if side is not None:
+        if not side > 0:
+            raise InvalidParameterError(f"grid_side must be positive, got {side!r}")
+    elif n <= target or ext <= 0:
         side = max(ext, 1e-300) * (1 + 1e-9)
     else:
         step = max(1, n // 200_000)
@@ -381,8 +385,8 @@ class TiledResult:
 def run_tiled(name: str, points=None, normals=None, *, source: Source | None = None,
               params: dict | None = None, client=None, tiles="auto",
               workers: int | None = None, scheduler: str | None = None,
-              memory_budget=None, scratch: str | None = None, on_result=None
-              ) -> TiledResult:
+              memory_budget=None, scratch: str | None = None, on_result=None,
+              grid_side: float | None = None) -> TiledResult:
     """Run registered filter ``name`` tile by tile on Dask; the result of every
     row is the one a run over the whole cloud gives (see the module docstring).
 
@@ -404,6 +408,9 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         Core points per tile (``auto``: from the memory budget).
     on_result : callable, optional
         ``on_result(pass_label, cell)`` after each tile's result (tests).
+    grid_side : float, optional
+        The tile grid's cell side in input units, instead of one chosen from
+        ``tiles`` (to align tiles with a grid the data already has).
     """
     from . import registry
 
@@ -417,7 +424,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         with dask_client(client, workers=workers, scheduler=scheduler,
                          memory_budget=memory_budget) as cl:
             target = tile_target(tiles, cl, source.n)
-            index = build_index(source, target, scratch)
+            index = build_index(source, target, scratch, side=grid_side)
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
             runner = _Runner(cl, source, index, on_result)

@@ -1,0 +1,149 @@
+"""Tiled runs on Dask (meshlab_bridge/tiles.py): the result of every row equals the
+one-piece run's, on seams, with tiles smaller than a neighbourhood, with empty
+cells, and when a worker is killed mid-run."""
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("dask.distributed", reason="needs pcprep[scale]")
+
+from pcprep.filters.denoise import denoise_l1_tv  # noqa: E402
+from pcprep.filters.outliers import remove_outliers  # noqa: E402
+from pcprep.filters.saliency import saliency_sparse_mdl  # noqa: E402
+from pcprep.meshlab_bridge import tiles  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster, \
+            distributed.Client(cluster) as c:
+        yield c
+
+
+def _surface(n, seed=0, outliers=5):
+    g = np.random.default_rng(seed)
+    xy = g.uniform(-1, 1, (n, 2))
+    z = 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.004 * g.normal(size=n)
+    pts = np.c_[xy, z] + [3e5, -2e5, 100.0]  # far from the origin, like UTM data
+    pts[:outliers] += g.normal(size=(outliers, 3)) * 0.4
+    return pts
+
+
+CLOUD = _surface(20_000)
+DENOISE = {"n_iter": 1}
+
+
+@pytest.fixture(scope="module")
+def denoise_ref():
+    return denoise_l1_tv(CLOUD, **DENOISE)
+
+
+def test_denoise_equals_one_piece(client, denoise_ref):
+    res = tiles.run_tiled("denoise", CLOUD, params=DENOISE, client=client, tiles=2500)
+    f, ref = res.fields, denoise_ref
+    assert res.stats["tiles"] >= 6
+    assert np.abs(f["points"] - ref.points).max() <= 1e-9 * ref.h
+    dots = np.einsum("ij,ij->i", f["normals"], ref.normals)
+    assert np.abs(1.0 - dots).max() <= 1e-9  # same normals, same signs
+    assert np.array_equal(f["edge_mask"], ref.edge_mask)
+    assert abs(res.h - ref.h) <= 1e-12 * ref.h
+
+
+def test_denoise_with_normals_keeps_their_orientation(client):
+    g = np.random.default_rng(1)
+    hint = np.c_[0.1 * g.normal(size=(len(CLOUD), 2)), np.ones(len(CLOUD))]
+    hint /= np.linalg.norm(hint, axis=1)[:, None]
+    ref = denoise_l1_tv(CLOUD, hint, **DENOISE)
+    res = tiles.run_tiled("denoise", CLOUD, hint, params=DENOISE, client=client, tiles=4000)
+    assert np.abs(res.fields["points"] - ref.points).max() <= 1e-9 * ref.h
+    assert np.abs(res.fields["normals"] - ref.normals).max() <= 1e-9
+
+
+def test_saliency_equals_one_piece(client):
+    pts = CLOUD[:12_000]
+    ref = saliency_sparse_mdl(pts)
+    res = tiles.run_tiled("saliency", pts, client=client, tiles=2000)
+    assert res.stats["tiles"] >= 4
+    assert np.abs(res.fields["saliency"] - ref.saliency).max() <= 1e-9
+    assert np.abs(res.fields["neighbourhood_saliency"] - ref.neighbourhood_saliency
+                  ).max() <= 1e-9
+
+
+@pytest.mark.parametrize("method", ["statistical", "radius"])
+def test_outliers_identical(client, method):
+    ref = remove_outliers(CLOUD, method=method)
+    res = tiles.run_tiled("outliers", CLOUD, params={"method": method}, client=client,
+                          tiles=1500)
+    assert len(ref.removed_idx) > 0
+    assert np.array_equal(res.fields["removed_idx"], ref.removed_idx)
+    assert np.array_equal(res.fields["score"], ref.score)
+
+
+def test_rows_on_seams_belong_to_one_core(client):
+    # a third of the points moved exactly onto the grid's cell faces
+    g = np.random.default_rng(2)
+    pts = CLOUD.copy()
+    side = 0.25
+    lo = pts.min(axis=0)
+    pick = g.choice(len(pts), len(pts) // 3, replace=False)
+    pts[pick, 0] = lo[0] + np.round((pts[pick, 0] - lo[0]) / side) * side
+    pts[pick, 1] = lo[1] + np.round((pts[pick, 1] - lo[1]) / side) * side
+    on_face = np.isclose(((pts[:, 0] - lo[0]) / side) % 1.0, 0.0)
+    assert on_face.sum() > 1000
+    ref = remove_outliers(pts)
+    res = tiles.run_tiled("outliers", pts, client=client, grid_side=side)
+    assert res.stats["grid_side"] == side
+    assert np.array_equal(res.fields["score"], ref.score)  # every row written once
+
+
+def test_small_and_empty_tiles(client):
+    # two clusters far apart (the cells between them are empty) and a group of
+    # five points, fewer than one neighbourhood, alone in its tile
+    g = np.random.default_rng(3)
+    a = _surface(6000, seed=4, outliers=0)
+    b = a[:3000] + [5.0, 0.0, 0.0]
+    lone = a[0] + [2.5, 2.5, 0.0] + 0.05 * g.normal(size=(5, 3))
+    pts = np.r_[a, b, lone]
+    ref = remove_outliers(pts)
+    res = tiles.run_tiled("outliers", pts, client=client, tiles=800)
+    cells = int(np.prod(_shape(res.stats["grid_side"], pts)))
+    assert res.stats["tiles"] < cells  # empty cells exist and are skipped
+    assert np.array_equal(res.fields["score"], ref.score)
+    assert set(range(len(a) + len(b), len(pts))) <= set(ref.removed_idx)
+
+
+def _shape(side, pts):
+    ext = pts.max(axis=0) - pts.min(axis=0)
+    return np.maximum(1, np.ceil(ext / side))
+
+
+def test_killed_worker_loses_nothing(client, denoise_ref):
+    killed = []
+
+    def kill_one(label, cell):
+        if label == "denoise" and not killed:
+            pids = client.run(os.getpid)
+            addr, pid = sorted(pids.items())[0]
+            killed.append(addr)
+            os.kill(pid, signal.SIGKILL)
+
+    res = tiles.run_tiled("denoise", CLOUD, params=DENOISE, client=client, tiles=2500,
+                          on_result=kill_one)
+    assert killed
+    ref = denoise_ref
+    assert np.abs(res.fields["points"] - ref.points).max() <= 1e-9 * ref.h
+    assert np.array_equal(res.fields["edge_mask"], ref.edge_mask)
+    client.wait_for_workers(2, timeout=60)
+
+
+def test_unknown_or_untiled_filter_is_refused(client):
+    from pcprep.filters import InvalidParameterError
+
+    with pytest.raises(InvalidParameterError, match="unknown filter"):
+        tiles.run_tiled("nope", CLOUD, client=client)
+    with pytest.raises(InvalidParameterError, match="tiles must be"):
+        tiles.run_tiled("outliers", CLOUD, client=client, tiles=0)
