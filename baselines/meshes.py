@@ -25,11 +25,15 @@ from pcprep.filters._validation import (
 )
 from pcprep.filters.neighbors import average_spacing
 
-log = logging.getLogger("pcprep")
-
 from ._sample import Sample, _segment_distance
 
 log = logging.getLogger("pcprep")
+
+#: the benchmark's truth rules (see ``datasets.sharp_truth`` / ``rim_truth``)
+SHARP_POSITIVE_DEG = 40.0
+SHARP_IGNORE_DEG = 20.0
+RIM_BAND = 1.5
+RIM_CARE = 2.5
 
 
 # ---------------------------------------------------------------------------
@@ -81,6 +85,38 @@ def _edge_angles(F, unit):
     return edges, ang, cnt
 
 
+def second_row(F, mask, n: int, within=None) -> np.ndarray:
+    """(n,) bool: the vertices joined by a mesh edge to a vertex of ``mask`` that
+    are not in ``mask`` themselves (and are in ``within`` when given)."""
+    F = np.asarray(F, dtype=np.int64)
+    mask = np.asarray(mask, dtype=bool)
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    out = np.zeros(n, dtype=bool)
+    for a, b in ((0, 1), (1, 0)):
+        out[e[mask[e[:, a]], b]] = True
+    out &= ~mask
+    if within is not None:
+        out &= np.asarray(within, dtype=bool)
+    return out
+
+
+def _mesh_sharp_truth(V, F) -> tuple[np.ndarray, np.ndarray]:
+    """``(positive, care)`` of a mesh's vertices: positive = a vertex of an edge of
+    dihedral angle >= 40°; negative = neither a vertex of an edge of >= 20° nor
+    joined by a mesh edge to one; the rest "don't care"."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    _, unit, _ = _face_geometry(V, F)
+    edges, ang, _ = _edge_angles(F, unit)
+    a = np.nan_to_num(ang, nan=-1.0)
+    pos = np.zeros(len(V), dtype=bool)
+    pos[edges[a >= SHARP_POSITIVE_DEG].ravel()] = True
+    near = np.zeros(len(V), dtype=bool)
+    near[edges[a >= SHARP_IGNORE_DEG].ravel()] = True
+    neg = ~near & ~second_row(F, near, len(V))
+    return pos, pos | neg
+
+
 def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
                 drop_unreferenced: bool = True, merge_duplicates: bool = True) -> Sample:
     """The vertices of a triangle mesh as a Sample with normals and labels.
@@ -107,7 +143,9 @@ def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
     Sample
         normals: area-weighted vertex normals; sharp: vertex on a sharp edge;
         rim: vertex on a boundary edge (an edge with a single face);
-        ``extra["nonmanifold"]``: vertex on an edge with more than two faces.
+        ``extra["nonmanifold"]``: vertex on an edge with more than two faces;
+        ``extra["sharp_pos"]`` / ``["sharp_care"]`` / ``["rim_care"]``: the
+        benchmark's truth rules (``datasets.sharp_truth`` / ``rim_truth``).
     """
     func = "mesh_sample"
     V, F = _mesh_arrays(V, F, func)
@@ -150,7 +188,10 @@ def mesh_sample(V, F, *, sharp_angle_deg: float = 30.0, name: str = "mesh",
     rim[edges[boundary].ravel()] = True
     nonman = np.zeros(len(V), dtype=bool)
     nonman[edges[cnt > 2].ravel()] = True
-    extra = {"vertex_idx": vidx, "nonmanifold": nonman, "zero_normal": bad}
+    pos, care = _mesh_sharp_truth(V, F)
+    extra = {"vertex_idx": vidx, "nonmanifold": nonman, "zero_normal": bad,
+             "sharp_pos": pos, "sharp_care": care,
+             "rim_care": ~second_row(F, rim, len(V))}
     return Sample(V, vn, sharp, rim, average_spacing(V), name, F, extra)
 
 
@@ -186,7 +227,7 @@ def _corner_normals(V, F, cr, unit, smooth_angle_deg):
 def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,
                         sharp_angle_deg: float = 30.0, sharp_width: float = 1.0,
                         rim_width: float = 1.5, normals: str = "auto",
-                        name: str = "mesh") -> Sample:
+                        name: str = "mesh", sampling: str = "random") -> Sample:
     """Draw ``n`` points uniformly (by area) on a triangle mesh, with labels.
 
     Parameters
@@ -207,6 +248,9 @@ def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,
         of area-weighted vertex normals (Phong); "auto": the same interpolation
         but each corner averages only the faces within ``sharp_angle_deg`` of its
         own face, so creases stay sharp and curved parts stay smooth.
+    sampling : {"random", "blue", "rows", "aniso"}, default="random"
+        "random": i.i.d. by area; the others as in ``datasets.make_shape`` (blue
+        noise from 5n random candidates, merged range scans from 12n).
 
     Returns
     -------
@@ -225,9 +269,13 @@ def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,
     rim_width = check_param(rim_width, func=func, name="rim_width", low=0.0, unit="h")
     normals = check_choice(normals, func=func, name="normals",
                            choices=("auto", "face", "interpolated"))
+    sampling = check_choice(sampling, func=func, name="sampling",
+                            choices=("random", "blue", "rows", "aniso"))
     cr, unit, area = _face_geometry(V, F)
     if area.sum() <= 0:
         raise PointCloudError(f"{func}: the mesh has zero total area")
+    target = n
+    n = {"random": 1, "blue": 5}.get(sampling, 12) * n
     rng = np.random.default_rng(seed)
     fi = rng.choice(len(F), size=n, p=area / area.sum())
     st = rng.random((n, 2))
@@ -244,6 +292,16 @@ def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,
         nrm = np.einsum("nj,njd->nd", bary, cn[fi])
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.where(length > 1e-12, nrm / np.maximum(length, 1e-300), unit[fi])
+    view_dir = None
+    if sampling != "random":
+        from .datasets import _blue_noise, _range_scans
+
+        if sampling == "blue":
+            keep = _blue_noise(pts, target, rng)
+        else:
+            keep, view_dir = _range_scans(pts, nrm, target, rng,
+                                          3.0 if sampling == "aniso" else 1.0)
+        pts, nrm, fi, bary = pts[keep], nrm[keep], fi[keep], bary[keep]
     h = average_spacing(pts)
     edges, eang, cnt = _edge_angles(F, unit)
     boundary = cnt == 1
@@ -251,8 +309,19 @@ def sample_mesh_surface(V, F, n: int = 20000, seed: int | None = 0, *,
     step = 0.25 * h
     ed = _segment_distance(pts, V[edges[sel, 0]], V[edges[sel, 1]], step)
     bd = _segment_distance(pts, V[edges[boundary, 0]], V[edges[boundary, 1]], step)
+    a = np.nan_to_num(eang, nan=-1.0)
+    d40 = _segment_distance(pts, V[edges[a >= SHARP_POSITIVE_DEG, 0]],
+                            V[edges[a >= SHARP_POSITIVE_DEG, 1]], step)
+    d20 = _segment_distance(pts, V[edges[a >= SHARP_IGNORE_DEG, 0]],
+                            V[edges[a >= SHARP_IGNORE_DEG, 1]], step)
+    pos = d40 <= sharp_width * h
     extra = {"face_index": fi, "barycentric": bary, "edge_distance": ed,
-             "boundary_distance": bd}
+             "boundary_distance": bd, "sharp_pos": pos,
+             "sharp_care": pos | (d20 > 2.0 * sharp_width * h),
+             "rim_care": (bd <= RIM_BAND * h) | (bd > RIM_CARE * h),
+             "sampling": sampling}
+    if view_dir is not None:
+        extra["view_dir"] = view_dir
     return Sample(pts, nrm, ed <= sharp_width * h, bd <= rim_width * h, h, name, None,
                   extra)
 
