@@ -75,7 +75,30 @@ def _add_filter_command(sub, spec) -> None:
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    big = p.add_argument_group("large clouds (tiles with a halo on Dask; needs pcprep[scale])")
+    big.add_argument("--tiles", default=None, type=_tiles, metavar="auto|N",
+                     help="run tile by tile: N core points per tile, or auto (from the "
+                          "memory budget); the result equals the one-piece run's")
+    big.add_argument("--workers", default=None, type=int, metavar="K",
+                     help="worker processes of the local Dask cluster (default: the cores)")
+    big.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="attach to a running Dask scheduler instead of a local cluster")
+    big.add_argument("--memory-budget", default=None, metavar="BYTES",
+                     help="memory limit per local worker (e.g. 4GB; default: the machine's "
+                          "memory shared out)")
     p.set_defaults(_spec=spec)
+
+
+def _tiles(text: str):
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected auto or a positive count, got {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -207,6 +230,10 @@ def _cmd_filter(args) -> int:
         from .meshset import pcprep_step_script
 
         pcprep_step_script(spec, spec.resolve(params), args.save_mlx)
+    if _tiled(args):
+        for src, dst in jobs:
+            _filter_file_tiled(spec, params, src, dst, args)
+        return 0
     if len(jobs) == 1 and args.out_dir is None:
         _filter_file(spec, params, *jobs[0], args.drop_nonfinite)
         return 0
@@ -250,6 +277,48 @@ def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -
                     f" (rows {shown})" if len(gone) else "")
     save_cloud(out, dst, require=needs, ramp=spec.kind == "scalar")
     log.info("%s: wrote %d points to %s", spec.command, len(out), dst)
+
+
+def _tiled(args) -> bool:
+    return any(getattr(args, a, None) is not None
+               for a in ("tiles", "workers", "scheduler", "memory_budget"))
+
+
+def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
+    """``_filter_file`` for a cloud larger than memory: positions streamed into a
+    scratch memory map, the filter run tile by tile on Dask, the result
+    streamed out with every attribute (meshlab_bridge/tiles.py)."""
+    import shutil
+    import tempfile
+
+    from . import formats, tiles
+    from .formats import stream
+
+    try:
+        import distributed  # noqa: F401
+    except ImportError as exc:
+        raise InvalidParameterError(
+            f"{spec.command}: --tiles/--workers/--scheduler need Dask: pip install "
+            "'pcprep[scale]'") from exc
+    if args.drop_nonfinite:
+        raise InvalidParameterError(f"{spec.command}: --drop-nonfinite is not available "
+                                    "with tiles")
+    needs = _NEEDS[spec.kind]
+    formats.check_destination(dst, needs=needs)
+    tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
+    scratch = tempfile.mkdtemp(prefix="pcprep-tiles-")
+    try:
+        n = stream.point_count(src)
+        source = tiles.ingest(stream.position_chunks(src), n, scratch)
+        log.info("%s: %d points from %s (tiled)", spec.command, n, src)
+        res = tiles.run_tiled(spec.name, source=source, params=params, tiles=args.tiles,
+                              workers=args.workers, scheduler=args.scheduler,
+                              memory_budget=args.memory_budget, scratch=scratch)
+        written = stream.write_streamed(spec, src, dst, res.fields)
+        log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
+                 written, dst, res.stats["tiles"], res.stats["halo_max"])
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _cmd_run(args) -> None:

@@ -249,6 +249,8 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
             yield c
         return
     nw = workers or os.cpu_count() or 1
+    for name in ("distributed", "tornado"):  # their lifecycle chatter is not ours to print
+        logging.getLogger(name).setLevel(logging.WARNING)
     with LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
                       memory_limit=memory_budget or "auto", dashboard_address=":0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as c:

@@ -147,3 +147,44 @@ def test_unknown_or_untiled_filter_is_refused(client):
         tiles.run_tiled("nope", CLOUD, client=client)
     with pytest.raises(InvalidParameterError, match="tiles must be"):
         tiles.run_tiled("outliers", CLOUD, client=client, tiles=0)
+
+
+def test_cli_tiled_laz_equals_one_piece(tmp_path):
+    import laspy
+
+    from pcprep.meshlab_bridge.cli import main
+
+    g = np.random.default_rng(5)
+    n = 12_000
+    pts = _surface(n, seed=5, outliers=0)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets = np.floor(pts.min(axis=0))
+    header.scales = [1e-4] * 3
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts.T
+    las.intensity = g.integers(0, 65535, n)
+    las.classification = g.integers(0, 10, n)
+    las.gps_time = np.arange(n) * 0.1
+    src = tmp_path / "in.laz"
+    las.write(src)
+    assert main(["saliency", str(src), str(tmp_path / "one.laz"), "--quiet"]) == 0
+    assert main(["saliency", str(src), str(tmp_path / "tiled.laz"), "--tiles", "3000",
+                 "--workers", "2", "--quiet"]) == 0
+    a, b = laspy.read(tmp_path / "one.laz"), laspy.read(tmp_path / "tiled.laz")
+    names = list(a.point_format.dimension_names)
+    assert names == list(b.point_format.dimension_names)
+    assert {"intensity", "classification", "gps_time", "saliency"} <= set(names)
+    for d in names:
+        va, vb = np.asarray(a[d], np.float64), np.asarray(b[d], np.float64)
+        if d == "saliency" or d == "quality":
+            assert np.abs(va - vb).max() <= 1e-9, d
+        elif d not in ("red", "green", "blue"):  # colours: a ramp of the saliency
+            assert np.array_equal(va, vb), d
+
+
+def test_cli_refuses_bad_tiles(capsys):
+    from pcprep.meshlab_bridge.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["denoise", "a.ply", "b.ply", "--tiles", "0"])
+    assert "positive count" in capsys.readouterr().err

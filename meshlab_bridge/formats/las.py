@@ -45,6 +45,12 @@ def read(path: str) -> Cloud:
     if header.point_count != len(las.points):
         raise PointCloudError(f"cannot read {path!r}: the header declares "
                               f"{header.point_count} points, the file holds {len(las.points)}")
+    return to_cloud(las, path)
+
+
+def to_cloud(las, path: str) -> Cloud:
+    """A ``Cloud`` of a ``laspy.LasData`` (a whole file or one chunk of it)."""
+    header = las.header
     pts = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
                            np.asarray(las.z, np.float64)])
     names = [d for d in las.point_format.dimension_names if d not in ("X", "Y", "Z")]
@@ -104,12 +110,32 @@ def _extra_type(arr: np.ndarray) -> str:
 
 
 def write(cloud: Cloud, path: str) -> None:
+    header, columns = output_header(cloud, path)
+    las = record(cloud, header, columns, path)
+    las.update_header()
+    las.write(path, do_compress=path.lower().endswith(".laz"))
+
+
+def output_header(cloud: Cloud, path: str):
+    """The header ``cloud`` is written with (the input's, plus an extra
+    dimension per new attribute) and the columns to write, by name."""
     import laspy
 
     header = cloud.meta.get("las_header")
     header = copy.deepcopy(header) if header is not None else _new_header(cloud)
-    standard = set(header.point_format.standard_dimension_names)
     existing = set(header.point_format.dimension_names)
+    columns = output_columns(cloud, header)
+    new = [laspy.ExtraBytesParams(name=n, type=_extra_type(np.asarray(v)))
+           for n, v in columns.items() if n not in existing and np.asarray(v).ndim == 1]
+    if new:
+        header.add_extra_dims(new)
+    return header, columns
+
+
+def output_columns(cloud: Cloud, header) -> dict:
+    """The columns of ``cloud`` (one chunk of a streamed write) under ``header``."""
+    existing = set(header.point_format.dimension_names)
+    standard = set(header.point_format.standard_dimension_names)
     columns = dict(cloud.attributes)
     if cloud.normals is not None:
         trio = next((t for t in _NORMALS if t[0] in existing), NORMAL_NAMES)
@@ -120,10 +146,13 @@ def write(cloud: Cloud, path: str) -> None:
             columns[c] = np.rint(cloud.colors[:, j] * 65535).astype(np.uint16)
     if cloud.quality is not None and "quality" not in columns:
         columns["quality"] = cloud.quality
-    new = [laspy.ExtraBytesParams(name=n, type=_extra_type(np.asarray(v)))
-           for n, v in columns.items() if n not in existing and np.asarray(v).ndim == 1]
-    if new:
-        header.add_extra_dims(new)
+    return columns
+
+
+def record(cloud: Cloud, header, columns: dict, path: str):
+    """A ``laspy.LasData`` holding ``cloud`` under ``header``."""
+    import laspy
+
     _check_range(cloud.points, header, path)
     las = laspy.LasData(header=header,
                         points=laspy.ScaleAwarePointRecord.zeros(len(cloud), header=header))
@@ -134,8 +163,7 @@ def write(cloud: Cloud, path: str) -> None:
             raise PointCloudError(f"cannot write {path!r}: attribute {name!r} is not "
                                   "one value per point")
         las[name] = values.astype(np.uint8) if values.dtype == bool else values
-    las.update_header()
-    las.write(path, do_compress=path.lower().endswith(".laz"))
+    return las
 
 
 def _check_range(points: np.ndarray, header, path: str) -> None:
