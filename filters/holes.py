@@ -7,7 +7,8 @@ multi-scale border features, thesis §7.3.1 and §7.3.4, eqs (7.5)-(7.7).
 1. Features per scale (7.5)-(7.7): |λ2 − 2λ1|/λ2, the density k h²/(π r²) and
    the tangential centroid shift / r, from one sorted k-NN query
    (``hole_features``), oriented so that larger is more border-like.
-2. Shared stage (``multiscale.code_lengths``): robust standardisation, K-SVD,
+2. Shared stage (``multiscale.fit_score_model``, ``score_rows``): robust
+   standardisation and K-SVD fitted once per cloud,
    every point coded, a code-length score f per point (higher = rarer).
 3. Threshold: Otsu, or T = β·max f as (7.10); f > T.  The printed rule
    (7.12)-(7.13), f < β·min f, selects nothing.
@@ -29,8 +30,9 @@ import numpy as np
 from ._border import (border_distance, border_gap, border_radius, strip_extent,
                       track_border)
 from ._params import Param, resolve_params, validate_params
-from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, code_lengths,
-                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes)
+from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
+                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
+                         score_rows)
 from .neighbors import average_spacing, build_tree
 
 log = logging.getLogger("pcprep")
@@ -115,6 +117,10 @@ class HoleFeatures:
     close_fraction : float
         Fraction of the points whose nearest neighbour is closer than 0.3 × the
         median nearest-neighbour distance (random-like sampling: ≥ 1 %).
+    shift_mean : (n,) float
+        Mean shift / r over the scales, the input of the ``min_shift`` test,
+        kept apart from ``features``, which the detector orients and
+        standardises in place to stay within one copy of the feature matrix.
     """
 
     features: np.ndarray
@@ -123,6 +129,7 @@ class HoleFeatures:
     variation: np.ndarray
     near: np.ndarray
     close_fraction: float
+    shift_mean: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -200,13 +207,15 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
     out[:, 1::3] *= h * h                                       # k h² / (π r²)
     close = float(np.mean(nn1 < _CLOSE_RATIO * np.median(nn1)))
     return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,
-                        near=near, close_fraction=close)
+                        near=near, close_fraction=close,
+                        shift_mean=out[:, 2::3].mean(axis=1))
 
 
-def _oriented(F: np.ndarray) -> np.ndarray:
-    """Columns turned so that larger is more border-like (§7.3.1: epv and
-    density drop at a border, the shift grows)."""
-    return F * np.tile([-1.0, -1.0, 1.0], F.shape[1] // 3)
+def _orient(F: np.ndarray) -> np.ndarray:
+    """Turn the columns, in place, so that larger is more border-like (§7.3.1:
+    epv and density drop at a border, the shift grows); returns ``F``."""
+    F *= np.tile([-1.0, -1.0, 1.0], F.shape[1] // 3)
+    return F
 
 
 def _rim_distance(F: np.ndarray, ks: np.ndarray) -> np.ndarray:
@@ -237,7 +246,7 @@ def _keep(mask: np.ndarray, test: np.ndarray, what: str) -> None:
 def _pointwise(mask, feats: HoleFeatures, bdist, cfg: _HoleConfig, rules: _HoleRules):
     """The tests on each detection's own neighbourhood, in place."""
     if cfg.min_shift > 0:
-        mask &= feats.features[:, 2::3].mean(axis=1) >= cfg.min_shift
+        mask &= feats.shift_mean >= cfg.min_shift
     if bdist is not None:
         _keep(mask, bdist <= cfg.rim_width, "localisation")
     if rules.flatness:
@@ -315,7 +324,10 @@ def _run(points, normals, cfg: _HoleConfig, stage: ScoreConfig,
     feats = hole_features(pts, ks, tree=tree)
     log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
     bdist = _rim_distance(feats.features, ks) if rules.rim_distance else None
-    codes = code_lengths(_oriented(feats.features), stage)
+    # oriented and standardised in place: _select needs only the per-point
+    # quantities kept apart in ``feats`` and ``bdist``
+    F = _orient(feats.features)
+    codes = score_rows(F, fit_score_model(F, stage), stage, overwrite=True)
     return _select(pts, ks, feats, bdist, codes, cfg, rules)
 
 

@@ -192,22 +192,48 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None
 # standardisation, dictionary, codes
 # ---------------------------------------------------------------------------
 
-def standardise(F: np.ndarray) -> np.ndarray:
+def column_scale(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column centre and scale of the robust standardisation.
+
+    ``median`` of each column and ``s = max(1.4826·MAD, 0.3·std)`` (1 where
+    s = 0), column by column so that the temporaries are one column long.
+    These are the global state of the standardisation: computed once over the
+    whole cloud and applied to any rows (``standardise``).
+    """
+    d = F.shape[1]
+    med = np.empty(d)  # noqa: NPY-empty -- every column written below
+    mad = np.empty(d)  # noqa: NPY-empty -- every column written below
+    std = np.empty(d)  # noqa: NPY-empty -- every column written below
+    for j in range(d):
+        col = np.ascontiguousarray(F[:, j])
+        med[j] = np.median(col)
+        mad[j] = np.median(np.abs(col - med[j]))
+        std[j] = col.std()
+    scale = np.maximum(1.4826 * mad, _MAD_FLOOR * std)
+    return med, np.where(scale > 0, scale, 1.0)
+
+
+def standardise(F: np.ndarray, med: np.ndarray | None = None,
+                scale: np.ndarray | None = None, *, overwrite: bool = False) -> np.ndarray:
     """Robust one-sided standardisation of the feature columns.
 
     ``z = max(0, (F − median) / s)`` per column, with
-    ``s = max(1.4826·MAD, 0.3·std)`` (1 where s = 0).  The columns must be
-    oriented so that larger means more feature-like; the bulk of ordinary
-    points then maps to (near) zero.  See docs/decisions/features.md, section
-    "Robust one-sided standardisation".
+    ``s = max(1.4826·MAD, 0.3·std)`` (1 where s = 0) from ``column_scale``
+    (given, or computed from ``F``).  The columns must be oriented so that
+    larger means more feature-like; the bulk of ordinary points then maps to
+    (near) zero.  Rows are standardised in chunks, into ``F`` itself with
+    ``overwrite`` (then the result is ``F``).  See
+    docs/decisions/features.md, section "Robust one-sided standardisation".
 
     >>> standardise(np.array([[0.0], [1.0], [2.0], [10.0]])).ravel().round(3).tolist()
     [0.0, 0.0, 0.337, 5.733]
     """
-    med = np.median(F, axis=0)
-    std = F.std(axis=0)
-    scale = np.maximum(1.4826 * np.median(np.abs(F - med), axis=0), _MAD_FLOOR * std)
-    return np.maximum((F - med) / np.where(scale > 0, scale, 1.0), 0.0)
+    if med is None or scale is None:
+        med, scale = column_scale(F)
+    Z = F if overwrite else np.empty(F.shape)  # noqa: NPY-empty -- every chunk written
+    for s0 in range(0, len(F), CHUNK):
+        Z[s0:s0 + CHUNK] = np.maximum((F[s0:s0 + CHUNK] - med) / scale, 0.0)
+    return Z
 
 
 #: constraints of the shared stage's parameters, the tail of both detectors'
@@ -270,16 +296,91 @@ class CodeLengths:
     dictionary: np.ndarray
 
 
-def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
-    """Standardise, learn a dictionary, code every point, score its code.
+@dataclass(frozen=True)
+class ScoreModel:
+    """The global state of the code-length score, fitted once per cloud
+    (``fit_score_model``) and applied to any rows (``score_rows``).
 
-    The columns of ``F`` are standardised (``standardise``); a K-SVD
-    dictionary of ``cfg.n_atoms`` atoms (§7.3.2, Alg. 3.3, ⌊d/10⌋ atoms per
-    training signal) is learned on a seeded subsample of ``cfg.max_train``
-    points; every point is coded on it by OMP to the squared residual
-    ``tol·d`` or by the Lasso (``coder="lasso_lars"``, penalty ``alpha``).
-    The score is ``‖α_j‖₁ + r_j`` (``score="l1"``) or the atom count (7.8)
-    plus ``r_j/(1 + r_j)`` as a tie-break (``score="count"``), r_j the residual.
+    Attributes
+    ----------
+    median, scale : (d,) float
+        The standardisation of each feature column (``column_scale``).
+    dictionary : (n_atoms, d) float
+        The K-SVD dictionary (rows are atoms).
+    train : (t,) int
+        The rows it was learned on (the first ``max_train`` in content order).
+    """
+
+    median: np.ndarray
+    scale: np.ndarray
+    dictionary: np.ndarray
+    train: np.ndarray
+
+
+def fit_score_model(F: np.ndarray, cfg: ScoreConfig) -> ScoreModel:
+    """Standardisation and K-SVD dictionary of the features ``F``.
+
+    A dictionary of ``cfg.n_atoms`` atoms (§7.3.2, Alg. 3.3, ⌊d/10⌋ atoms per
+    training signal) is learned on the first ``cfg.max_train`` standardised
+    rows in content order (``sparse.content_order``): the subsample follows
+    the rotation-invariant features, not the row order, so a permuted or
+    rotated cloud gets the same dictionary.
+    """
+    med, scale = column_scale(F)
+    d = F.shape[1]
+    L = max(1, min(d, cfg.n_atoms) // 10)
+    keys = np.empty(len(F), dtype=np.uint64)  # noqa: NPY-empty -- every chunk written below
+    for s0 in range(0, len(F), CHUNK):
+        keys[s0:s0 + CHUNK] = sparse.content_keys(
+            standardise(F[s0:s0 + CHUNK], med, scale), cfg.seed)
+    train = np.argsort(keys, kind="stable")[: cfg.max_train]
+    del keys
+    Zt = standardise(F[train], med, scale)
+    D = sparse.ksvd(Zt, cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
+                    max_train=len(train), seed=cfg.seed, code_all=False).dictionary
+    return ScoreModel(median=med, scale=scale, dictionary=D, train=train)
+
+
+def score_rows(F: np.ndarray, model: ScoreModel, cfg: ScoreConfig, *,
+               overwrite: bool = False) -> CodeLengths:
+    """Code every row of ``F`` on the model's dictionary and score its code.
+
+    Each row is standardised with the model, then coded by OMP to the squared
+    residual ``tol·d`` or by the Lasso (``coder="lasso_lars"``, penalty
+    ``alpha``).  The score is ``‖α_j‖₁ + r_j`` (``score="l1"``) or the atom
+    count (7.8) plus ``r_j/(1 + r_j)`` as a tie-break (``score="count"``), r_j
+    the residual.  A row's result depends on that row and the model only.
+    With ``overwrite`` the rows are standardised in ``F`` itself (float64,
+    C-contiguous), which saves one copy of the feature matrix.
+    """
+    Z = standardise(F, model.median, model.scale, overwrite=overwrite)
+    D = model.dictionary
+    d = Z.shape[1]
+    if cfg.coder == "omp":
+        # signals already within the residual target need no atom (most
+        # ordinary points); only the others are pursued
+        busy = np.flatnonzero(np.einsum("ij,ij->i", Z, Z) > cfg.tol * d)
+        if len(busy):
+            part = sparse.omp(Z, D, tol=cfg.tol * d, rows=busy).tocoo()
+            codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
+                                  shape=(len(Z), D.shape[0]))
+        else:  # a tolerance every signal already meets: no atom for anyone
+            codes = sp.csr_matrix((len(Z), D.shape[0]))
+    else:
+        codes = sparse.lasso_lars(Z, D, alpha=cfg.alpha)
+    nnz, resid = sparse.code_length(codes, Z, D)
+    del Z
+    if cfg.score == "count":
+        score = nnz + resid / (1.0 + resid)     # the tie-break is in [0, 1)
+    else:
+        l1 = np.asarray(abs(codes.tocsr()).sum(axis=1)).ravel()
+        score = l1 + resid
+    return CodeLengths(score=score, nnz=nnz, residual=resid, dictionary=D)
+
+
+def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
+    """Standardise, learn a dictionary, code every point, score its code:
+    ``score_rows(F, fit_score_model(F, cfg), cfg)``.
 
     Parameters
     ----------
@@ -291,35 +392,7 @@ def code_lengths(F: np.ndarray, cfg: ScoreConfig) -> CodeLengths:
     -------
     CodeLengths
     """
-    Z = standardise(F)
-    d = Z.shape[1]
-    L = max(1, min(d, cfg.n_atoms) // 10)
-    # the training subsample is drawn here so that K-SVD codes only it
-    m = len(Z)
-    # the subsample and its order follow the (rotation-invariant) features, not
-    # the rows: a permuted or rotated cloud gets the same dictionary
-    train = sparse.content_order(Z, cfg.seed)[: cfg.max_train]
-    D = sparse.ksvd(Z[train], cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
-                    max_train=len(train), seed=cfg.seed).dictionary
-    if cfg.coder == "omp":
-        # signals already within the residual target need no atom (most
-        # ordinary points); only the others are pursued
-        busy = np.flatnonzero(np.einsum("ij,ij->i", Z, Z) > cfg.tol * d)
-        if len(busy):
-            part = sparse.omp(Z[busy], D, tol=cfg.tol * d).tocoo()
-            codes = sp.csr_matrix((part.data, (busy[part.row], part.col)),
-                                  shape=(len(Z), D.shape[0]))
-        else:  # a tolerance every signal already meets: no atom for anyone
-            codes = sp.csr_matrix((len(Z), D.shape[0]))
-    else:
-        codes = sparse.lasso_lars(Z, D, alpha=cfg.alpha)
-    nnz, resid = sparse.code_length(codes, Z, D)
-    if cfg.score == "count":
-        score = nnz + resid / (1.0 + resid)     # the tie-break is in [0, 1)
-    else:
-        l1 = np.asarray(abs(codes.tocsr()).sum(axis=1)).ravel()
-        score = l1 + resid
-    return CodeLengths(score=score, nnz=nnz, residual=resid, dictionary=D)
+    return score_rows(F, fit_score_model(F, cfg), cfg)
 
 
 # ---------------------------------------------------------------------------

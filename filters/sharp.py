@@ -6,7 +6,8 @@ covariance features on a learned dictionary, thesis §7.3, eqs (7.1)-(7.11).
 
 1. Features per scale (7.1)-(7.4): λ0/h², λ0/λ2, σ = λ0/Σλ and Pd/h, from one
    sorted k-NN query (``sharp_features``), concatenated over the scales (§7.3.5).
-2. Shared stage (``multiscale.code_lengths``): robust standardisation, K-SVD,
+2. Shared stage (``multiscale.fit_score_model``, ``score_rows``): robust
+   standardisation and K-SVD fitted once per cloud,
    every point coded, a code-length score f per point.
 3. Threshold: Otsu on the winsorised score, or T = β·max f (7.10); f > T (7.11).
 4. Not in the thesis: a crease-angle gate (``min_angle``) and a localisation
@@ -27,8 +28,9 @@ from ._crease import (crease_distance, localisation_k, noise_level, normal_sprea
                       plane_k, two_plane_distance)
 from ._params import Param, resolve_params, validate_params
 from ._validation import PointCloudError
-from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, code_lengths,
-                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes)
+from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
+                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
+                         score_rows)
 from .neighbors import SPACING_K, average_spacing, spacing_from_rows
 
 log = logging.getLogger("pcprep")
@@ -102,12 +104,21 @@ class SharpFeatures:
         PCA normals of the scale nearest 16 points (sign arbitrary).
     nn_cv : float
         Coefficient of variation of the nearest-neighbour distance.
+    noise_column : (n,) float
+        λ0/h² of the smallest scale (``features[:, 0]``), the input of the
+        noise estimate.
+    ridge_pd : (n,) float
+        Mean Pd/h over the larger half of the scales, the ridge strength's
+        factor.  Both are kept apart from ``features``, which the detector
+        standardises in place to stay within one copy of the feature matrix.
     """
 
     features: np.ndarray
     h: float
     normals: np.ndarray
     nn_cv: float
+    noise_column: np.ndarray
+    ridge_pd: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -196,7 +207,9 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     out[:, 3::4] /= h                                           # Pd in h
     m1 = float(nn1.mean())
     cv = float(nn1.std() / m1) if m1 > 0 else 0.0
-    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=cv)
+    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=cv,
+                         noise_column=out[:, 0].copy(),
+                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1))
 
 
 def _threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
@@ -218,7 +231,7 @@ def _crease_limits(pts, mask, ridge, feats: SharpFeatures, cfg: _SharpConfig,
     meet (two-plane model where it fits, ridge line elsewhere; ``row_width``
     on a regular sampling), both in h."""
     h = feats.h
-    sigma = noise_level(feats.features[:, 0])
+    sigma = noise_level(feats.noise_column)
     k_loc = localisation_k(sigma)
     log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d", _FUNC, sigma, k_loc)
     cdist = crease_distance(pts, mask, ridge, h=h, k=k_loc, tree=tree)
@@ -252,7 +265,7 @@ def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _Sharp
                  _FUNC, cfg.min_angle, int(mask.sum()), n_det)
     if rules.localise and mask.any():
         # ridge strength: code length × mean Pd (h) over the larger half of the scales
-        ridge = score * feats.features[:, 3::4][:, len(ks) // 2:].mean(axis=1)
+        ridge = score * feats.ridge_pd
         cdist, limit = _crease_limits(pts, mask, ridge, feats, cfg, rules, tree)
         n_det = int(mask.sum())
         mask &= cdist <= limit
@@ -274,7 +287,10 @@ def _run(points, normals, cfg: _SharpConfig, stage: ScoreConfig,
     ks = scale_sizes(stage.k_min, stage.k_max, stage.n_scales)
     feats = sharp_features(pts, ks, tree=tree)
     log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
-    codes = code_lengths(feats.features, stage)
+    # the features are standardised in place: _select needs only the columns
+    # kept apart in ``feats``
+    codes = score_rows(feats.features, fit_score_model(feats.features, stage), stage,
+                       overwrite=True)
     return _select(pts, tree, ks, feats, codes, cfg, rules)
 
 

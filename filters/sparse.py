@@ -58,7 +58,7 @@ _EPS = 1e-12
 # --------------------------------------------------------------------------- helpers
 def _as_signals(X, func: str, name: str = "X") -> np.ndarray:
     try:
-        arr = np.array(X, dtype=np.float64, copy=True)
+        arr = np.asarray(X, dtype=np.float64)  # read only here: no copy of float64 input
     except (TypeError, ValueError) as exc:
         raise InvalidParameterError(f"{func}: {name} must be numeric") from exc
     if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
@@ -66,6 +66,30 @@ def _as_signals(X, func: str, name: str = "X") -> np.ndarray:
     if not np.isfinite(arr).all():
         raise InvalidParameterError(f"{func}: {name} contains NaN or Inf")
     return np.ascontiguousarray(arr)
+
+
+@dataclass(frozen=True)
+class _RowChunks:
+    """Consecutive chunks of the signals ``X`` or of ``X[rows]``."""
+
+    X: np.ndarray
+    rows: np.ndarray | None
+
+    def __call__(self, s0: int, e: int) -> np.ndarray:
+        if self.rows is None:
+            return self.X[s0:e]
+        return self.X[self.rows[s0:e]]
+
+
+def _row_chunks(X: np.ndarray, rows, func: str) -> _RowChunks:
+    if rows is None:
+        return _RowChunks(X, None)
+    rows = np.asarray(rows)
+    if rows.ndim != 1 or (rows.size and (rows.dtype.kind not in "iu" or rows.min() < 0
+                                         or rows.max() >= len(X))):
+        raise InvalidParameterError(
+            f"{func}: rows must be a 1-D array of row indices in [0, {len(X)})")
+    return _RowChunks(X, rows.astype(np.int64, copy=False))
 
 
 def _as_dictionary(D, d: int, func: str) -> np.ndarray:
@@ -114,7 +138,12 @@ def code_length(codes, X, D) -> tuple[np.ndarray, np.ndarray]:
     codes.eliminate_zeros()
     nnz = np.diff(codes.indptr).astype(np.int64)
     X = np.asarray(X, dtype=np.float64)
-    residual = np.linalg.norm(X - codes @ np.asarray(D, dtype=np.float64), axis=1)
+    D = np.asarray(D, dtype=np.float64)
+    # by row chunks: the reconstruction is never held for every signal at once
+    residual = np.empty(len(X))  # noqa: NPY-empty -- every chunk written below
+    for s0 in range(0, len(X), CHUNK):
+        e = min(len(X), s0 + CHUNK)
+        residual[s0:e] = np.linalg.norm(X[s0:e] - codes[s0:e] @ D, axis=1)
     return nnz, residual
 
 
@@ -171,7 +200,8 @@ def _omp_codes(X, D, L, tol):
     return _omp_chunk(X, D, L, tol)
 
 
-def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -> sp.csr_matrix:
+def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
+        rows: np.ndarray | None = None) -> sp.csr_matrix:
     """Orthogonal matching pursuit of many signals at once (problem (3.6)).
 
     Parameters
@@ -186,10 +216,13 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
     tol : float, optional
         Stop a signal once its squared residual ``‖x − αD‖²`` is ≤ ``tol``
         (scikit-learn's convention).  With both given, whichever comes first.
+    rows : (r,) int, optional
+        Code only the signals ``X[rows]`` (gathered chunk by chunk, so no copy
+        of the selected signals is made); the result then has r rows.
 
     Returns
     -------
-    codes : (m, n_atoms) scipy.sparse.csr_matrix
+    codes : (m, n_atoms) or (r, n_atoms) scipy.sparse.csr_matrix
         Coefficients on the (normalised) atoms of ``D``.
 
     Notes
@@ -212,16 +245,18 @@ def omp(X, D, *, n_nonzero_coefs: int | None = None, tol: float | None = None) -
     else:
         L = check_param(n_nonzero_coefs, func=func, name="n_nonzero_coefs", kind=int,
                         low=1, high=min(d, S))
-    rows, cols, vals = [], [], []
+    take = _row_chunks(X, rows, func)
+    m = len(X) if rows is None else len(take.rows)
+    out_r, cols, vals = [], [], []
     with _single_blas(), progress.step("OMP coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
-            r, c_, v = _compact(s0, *_omp_codes(X[s0:e], D, L, tol))
-            rows.append(r)
+            r, c_, v = _compact(s0, *_omp_codes(take(s0, e), D, L, tol))
+            out_r.append(r)
             cols.append(c_)
             vals.append(v)
             advance(e - s0)
-    return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
+    return _csr(np.concatenate(out_r), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 
 # --------------------------------------------------------------------------- LARS
@@ -405,7 +440,8 @@ def _lasso_chunk(X, D, alpha, K, max_steps):
     return act, beta
 
 
-def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_matrix:
+def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None,
+               rows: np.ndarray | None = None) -> sp.csr_matrix:
     """Lasso codes of many signals by LARS (thesis (3.7), Algorithm 3.1 with
     the Lasso modification).
 
@@ -421,10 +457,12 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
         so its λ equals ``2 * alpha``).  ``alpha ≥ max_j |d_j·x|`` gives α = 0.
     max_steps : int, optional
         Cap on LARS events (joins and drops) per signal; default ``8 * min(d, n_atoms)``.
+    rows : (r,) int, optional
+        Code only the signals ``X[rows]`` (as in ``omp``).
 
     Returns
     -------
-    codes : (m, n_atoms) scipy.sparse.csr_matrix
+    codes : (m, n_atoms) or (r, n_atoms) scipy.sparse.csr_matrix
 
     Notes
     -----
@@ -459,17 +497,19 @@ def lasso_lars(X, D, *, alpha: float, max_steps: int | None = None) -> sp.csr_ma
     if max_steps is None:
         max_steps = 8 * K
     max_steps = check_param(max_steps, func=func, name="max_steps", kind=int, low=1)
-    rows, cols, vals = [], [], []
+    take = _row_chunks(X, rows, func)
+    m = len(X) if rows is None else len(take.rows)
+    out_r, cols, vals = [], [], []
     with _single_blas(), progress.step("LARS-Lasso coding", m) as advance:
         for s0 in range(0, m, CHUNK):
             e = min(m, s0 + CHUNK)
-            act, beta = _lasso_chunk(X[s0:e], Du, alpha, K, max_steps)
+            act, beta = _lasso_chunk(take(s0, e), Du, alpha, K, max_steps)
             r, c_, v = _compact(s0, atoms[act], beta)
-            rows.append(r)
+            out_r.append(r)
             cols.append(c_)
             vals.append(v)
             advance(e - s0)
-    return _csr(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), (m, S))
+    return _csr(np.concatenate(out_r), np.concatenate(cols), np.concatenate(vals), (m, S))
 
 
 # --------------------------------------------------------------------------- K-SVD
@@ -561,25 +601,41 @@ def _update_atoms_numpy(D, sup, coef, E_all, pos, starts):
     return unused
 
 
+def content_keys(X: np.ndarray, seed: int | None = 0, decimals: int = 6) -> np.ndarray:
+    """A 64-bit hash of each row of ``X`` that depends on its content only.
+
+    Each row is rounded to ``decimals`` decimals and hashed (splitmix64 over
+    the columns, started from ``seed``).  Rows are hashed in chunks, so the
+    memory beyond the (m,) result is one chunk; the key of a row does not
+    depend on the other rows, so keys computed piece by piece (tiles) are the
+    keys of the whole.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    keys = np.empty(len(X), dtype=np.uint64)  # noqa: NPY-empty -- every entry written below
+    start = np.uint64(0x9E3779B97F4A7C15) * np.uint64((seed or 0) + 1)
+    for s0 in range(0, len(X), CHUNK):
+        q = np.round(X[s0:s0 + CHUNK] * 10.0 ** decimals)
+        q = np.clip(q, -2.0**62, 2.0**62).astype(np.int64).view(np.uint64)
+        with np.errstate(over="ignore"):
+            h = np.full(len(q), start, dtype=np.uint64)
+            for j in range(q.shape[1]):
+                h = h ^ q[:, j]
+                h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+                h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+                h = h ^ (h >> np.uint64(31))
+        keys[s0:s0 + len(q)] = h
+    return keys
+
+
 def content_order(X: np.ndarray, seed: int | None = 0, decimals: int = 6) -> np.ndarray:
     """A permutation of the rows of ``X`` that depends on their content only.
 
-    Each row is rounded to ``decimals`` decimals and hashed (with ``seed``); the
-    rows sorted by hash are a pseudo-random order that does not change when the
-    rows are permuted, nor when their values move by rounding noise (a rotated
-    cloud's features), so a subsample taken as its first rows is the same set.
+    The rows sorted by ``content_keys`` (stable): a pseudo-random order that
+    does not change when the rows are permuted, nor when their values move by
+    rounding noise (a rotated cloud's features), so a subsample taken as its
+    first rows is the same set.
     """
-    q = np.round(np.asarray(X, dtype=np.float64) * 10.0 ** decimals)
-    q = np.clip(q, -2.0**62, 2.0**62).astype(np.int64).view(np.uint64)
-    with np.errstate(over="ignore"):
-        h = np.full(len(q), np.uint64(0x9E3779B97F4A7C15) * np.uint64(
-            (seed or 0) + 1), dtype=np.uint64)
-        for j in range(q.shape[1]):  # splitmix64 over the columns
-            h = h ^ q[:, j]
-            h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-            h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-            h = h ^ (h >> np.uint64(31))
-    return np.argsort(h, kind="stable")
+    return np.argsort(content_keys(X, seed, decimals), kind="stable")
 
 
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,

@@ -47,20 +47,34 @@ def _compare(spec, a, b, h, back_points, back_rows):
         assert np.array_equal(np.sort(getattr(a, spec.index_field)), kept_b)
 
 
+def _same_outcome(a, b, pts, h):
+    """SDBS under a rotation: nearly the same kept set, the same coverage."""
+    from scipy.spatial import cKDTree
+
+    A, B = set(a.keep_idx.tolist()), set(b.keep_idx.tolist())
+    assert len(A) == len(B)
+    assert len(A & B) / len(A | B) >= 0.9
+    davg = [cKDTree(pts[k]).query(pts)[0].mean() / h for k in (a.keep_idx, b.keep_idx)]
+    assert abs(davg[0] - davg[1]) <= 0.01 * davg[0]
+
+
 @pytest.mark.parametrize("spec", SPECS, ids=[s.command for s in SPECS])
 def test_rotation_permutation_and_translation(spec, cloud):
     pts, h = cloud
     base = _call(spec, pts)
     n = len(pts)
     rot = random_rotation(7)
-    _compare(spec, base, _call(spec, pts @ rot.T), h, lambda y: y @ rot, np.arange(n))
-    if spec.command != "simplify":  # SDBS samples its K-SVD training set by row:
-        # docs/decisions/simplify.md, "Training subsample by row"
-        perm = np.random.default_rng(3).permutation(n)
-        inv = np.argsort(perm)
-        _compare(spec, base, _call(spec, pts[perm]), h, lambda y: y, inv)
-    if spec.command == "simplify":  # see the decisions record named above
+    if spec.command == "simplify":  # near-ties decided by rounding noise, see
+        # docs/decisions/simplify.md, "Rotation on another machine"
+        _same_outcome(base, _call(spec, pts @ rot.T), pts, h)
         return
+    _compare(spec, base, _call(spec, pts @ rot.T), h, lambda y: y @ rot, np.arange(n))
+    # SDBS returned above; it also samples its K-SVD training set by row, so a
+    # permutation or a translation changes its dictionary (docs/decisions/simplify.md,
+    # "Training subsample by row")
+    perm = np.random.default_rng(3).permutation(n)
+    inv = np.argsort(perm)
+    _compare(spec, base, _call(spec, pts[perm]), h, lambda y: y, inv)
     shift = np.array([5e6, -2e6, 3e5])
     assert np.array_equal((pts + shift) - shift, pts)
     _compare(spec, base, _call(spec, pts + shift), h, lambda y: y - shift, np.arange(n))

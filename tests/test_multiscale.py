@@ -115,3 +115,31 @@ def test_docstring_examples_run():
     for module in (multiscale, sharp, holes, _crease, _border):
         result = doctest.testmod(module)
         assert result.attempted > 0 and result.failed == 0, module.__name__
+
+
+@pytest.mark.parametrize("coder", ["omp", "lasso_lars"])
+def test_score_rows_of_a_subset_equal_the_whole_cloud_rows(rng, coder):
+    """The global state is fitted once; a row's score then depends on that row
+    only, so a tile of rows scored alone gets the whole cloud's scores."""
+    from pcprep.filters.multiscale import fit_score_model, score_rows
+
+    F = np.abs(rng.normal(size=(3000, 12)))
+    F[:60] *= 6.0                                   # rare vectors
+    cfg = _config(n_atoms=20, coder=coder)
+    model = fit_score_model(F, cfg)
+    whole = score_rows(F, model, cfg)
+    assert np.array_equal(whole.score, code_lengths(F, cfg).score)
+    rows = rng.permutation(3000)[:700]
+    part = score_rows(F[rows], model, cfg)
+    np.testing.assert_allclose(part.score, whole.score[rows], rtol=0, atol=1e-12)
+    assert np.array_equal(part.nnz, whole.nnz[rows])
+    assert whole.score[:60].mean() > 2 * whole.score[60:].mean()
+
+
+def test_standardise_in_place_equals_a_copy(rng):
+    F = rng.normal(size=(500, 7))
+    Z = standardise(F)
+    G = F.copy()
+    out = standardise(G, overwrite=True)
+    assert out is G and np.array_equal(out, Z)
+    assert (Z >= 0).all() and np.isclose(np.median(F[:, 0] - np.median(F[:, 0])), 0.0)

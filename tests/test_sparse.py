@@ -189,3 +189,23 @@ def test_lasso_lars_degenerate_dictionary(solver_path):
         r = X[i] - D.T @ model.coef_
         ref = 0.5 * r @ r + alpha * np.abs(model.coef_).sum()
         assert ours[i] <= ref + 1e-9
+
+
+def test_coding_selected_rows_equals_coding_their_copy(solver_path):
+    D, codes, X = _planted(d=32, S=40, m=400, k=3, seed=5)
+    rows = np.random.default_rng(1).permutation(400)[:150]
+    a = sparse.omp(X, D, n_nonzero_coefs=3, rows=rows).toarray()
+    assert np.array_equal(a, sparse.omp(X[rows], D, n_nonzero_coefs=3).toarray())
+    b = sparse.lasso_lars(X, D, alpha=0.05, rows=rows).toarray()
+    assert np.array_equal(b, sparse.lasso_lars(X[rows], D, alpha=0.05).toarray())
+    assert np.count_nonzero(a) >= 150
+    with pytest.raises(InvalidParameterError, match="rows"):
+        sparse.omp(X, D, n_nonzero_coefs=3, rows=np.array([0, 400]))
+
+
+def test_content_keys_of_pieces_are_the_keys_of_the_whole():
+    X = np.random.default_rng(2).normal(size=(70_000, 5))   # more than one chunk
+    keys = sparse.content_keys(X, seed=3)
+    assert np.array_equal(keys[65_000:], sparse.content_keys(X[65_000:], seed=3))
+    assert np.array_equal(sparse.content_order(X, 3), np.argsort(keys, kind="stable"))
+    assert len(np.unique(keys)) == len(X)
