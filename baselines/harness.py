@@ -555,3 +555,57 @@ def environment_info() -> dict:
         "versions": versions,
         "timestamp_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+# ----------------------------------------------------------------------------------------
+# tuning / held-out splits and the thesis preset
+# ----------------------------------------------------------------------------------------
+
+#: the values of the ``"split"`` key of every case / row of a family report
+SPLITS = ("tuning", "held-out")
+
+
+def accepts_preset(fn: Callable) -> bool:
+    """True when ``fn`` takes a ``preset`` parameter (``preset="thesis"`` runs the
+    method as printed in the thesis); checked when a harness starts, so a filter
+    that gains the parameter gets its "thesis preset" column without a change here."""
+    import inspect
+
+    try:
+        return "preset" in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def split_summary(records: list, methods, value: Callable) -> dict:
+    """Mean of ``value(record, method)`` per split and method over the finite
+    values, the count of records behind each mean, and the gap (held-out minus
+    tuning) per method; None where a split has no finite value."""
+    out: dict = {"mean": {}, "count": {}, "gap": {}}
+    for split in SPLITS:
+        rs = [r for r in records if r.get("split") == split]
+        out["count"][split] = len(rs)
+        out["mean"][split] = {}
+        for m in methods:
+            vals = [value(r, m) for r in rs]
+            vals = [float(v) for v in vals if v is not None and _is_number(v)
+                    and math.isfinite(float(v))]
+            out["mean"][split][m] = float(np.mean(vals)) if vals else None
+    for m in methods:
+        a, b = out["mean"]["tuning"][m], out["mean"]["held-out"][m]
+        out["gap"][m] = None if a is None or b is None else b - a
+    return out
+
+
+def split_table(summary: dict, methods, how: str, fmt: str = "{:.3f}") -> str:
+    """Markdown rows "tuning", "held-out" and "gap (held-out − tuning)" of a
+    :func:`split_summary`, best of the two mean rows in bold (``how`` = "min" or
+    "max")."""
+    header = ["split (cases)"] + list(methods)
+    rows = [[f"{s} ({summary['count'][s]})"] + [summary["mean"][s][m] for m in methods]
+            for s in SPLITS]
+    body = markdown_table(header, rows, best={i + 1: how for i in range(len(methods))},
+                          fmt=fmt)
+    gap = markdown_table(header, [["gap (held-out − tuning)"]
+                                  + [summary["gap"][m] for m in methods]], fmt=fmt)
+    return body + gap.split("\n", 2)[2]
