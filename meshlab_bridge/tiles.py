@@ -281,13 +281,17 @@ class _Runner:
         self.client, self.src, self.index = client, src, index
         self.on_result = on_result
         self.halo = {}  # cell -> the halo that proved wide enough
+        self.times = {}  # pass label -> wall seconds
 
     def run(self, label: str, fn, halo: float, args: dict, collect, per_tile=None) -> None:
         """``fn(points, lo, hi, core, **args, **per_tile(rows, core))`` on every
         tile; ``collect(rows, core, result)`` gets each exact result (rows = the
         extended rows)."""
+        import time
+
         from dask.distributed import as_completed
 
+        t0 = time.perf_counter()
         cells = [int(c) for c in self.index.cells]
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         seen = np.zeros(self.src.n, dtype=np.int8)
@@ -325,6 +329,7 @@ class _Runner:
                     if self.on_result is not None:
                         self.on_result(label, c)
                 submit()
+        self.times[label] = self.times.get(label, 0.0) + time.perf_counter() - t0
         if not (seen == 1).all():
             bad = np.flatnonzero(seen != 1)[:10].tolist()
             raise RuntimeError(f"{label}: rows {bad} were written {sorted(set(seen[bad]))} "
@@ -425,15 +430,23 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             source = source_from_array(points, scratch)
         with dask_client(client, workers=workers, scheduler=scheduler,
                          memory_budget=memory_budget) as cl:
+            import time
+
+            t0 = time.perf_counter()
             target = tile_target(tiles, cl, source.n)
             index = build_index(source, target, scratch, side=grid_side)
+            t_index = time.perf_counter() - t0
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
             runner = _Runner(cl, source, index, on_result)
             h = _fit_spacing(runner, source, index)
             family = _FAMILIES[spec.command]
+            t1 = time.perf_counter()
             out = family(runner, source, normals, h, resolved, scratch)
-            out.stats.update(tiles=len(index.cells), grid_side=index.side, target=target,
+            total = time.perf_counter() - t1 + runner.times["spacing"]
+            out.stats.update(time_index=t_index, time_passes=dict(runner.times),
+                             time_driver=total - sum(runner.times.values()),
+                             tiles=len(index.cells), grid_side=index.side, target=target,
                              halo_max=max(runner.halo.values()) if runner.halo else 0.0)
             return out
     finally:
