@@ -599,13 +599,18 @@ def split_summary(records: list, methods, value: Callable) -> dict:
 
 def split_table(summary: dict, methods, how: str, fmt: str = "{:.3f}") -> str:
     """Markdown rows "tuning", "held-out" and "gap (held-out − tuning)" of a
-    :func:`split_summary`, best of the two mean rows in bold (``how`` = "min" or
-    "max")."""
+    :func:`split_summary`, the best method of each mean row in bold (``how`` =
+    "min" or "max"); a split without cases gets no row (and then no gap row)."""
     header = ["split (cases)"] + list(methods)
+    present = [s for s in SPLITS if summary["count"][s]]
     rows = [[f"{s} ({summary['count'][s]})"] + [summary["mean"][s][m] for m in methods]
-            for s in SPLITS]
+            for s in present]
+    if not rows:
+        return "No case ran.\n"
     body = markdown_table(header, rows, best={i + 1: how for i in range(len(methods))},
                           fmt=fmt)
+    if len(present) < len(SPLITS):
+        return body
     gap = markdown_table(header, [["gap (held-out − tuning)"]
                                   + [summary["gap"][m] for m in methods]], fmt=fmt)
     return body + gap.split("\n", 2)[2]

@@ -62,3 +62,11 @@ def test_feature_targets_on_held_out_rows_only():
     # +0.05 margin over 0.90; the tuning row is not checked
     assert [x["ok"] for x in t["sharp"]] == [True, False, False]
     assert [x["ok"] for x in t["holes"]] == [True, False]
+
+
+def test_split_table_leaves_out_a_split_without_cases():
+    s = harness.split_summary([dict(split="tuning", a=1.0)], ["a"], lambda r, m: r[m])
+    t = harness.split_table(s, ["a"], "max")
+    assert "tuning (1)" in t and "held-out" not in t and "gap" not in t
+    empty = harness.split_summary([], ["a"], lambda r, m: r[m])
+    assert harness.split_table(empty, ["a"], "max") == "No case ran.\n"
