@@ -481,7 +481,8 @@ def _thesis_side_by_side(cases: list, protocol_cases: list | None = None) -> lis
             c = match[0]
             for metric, key in (("MAD", "mad_own"), ("SNR_dB", "snr")):
                 row = dict(table=table, model=tm, noise=cond if source != "mesh vertices"
-                           else f"{kind} {sig:g}h", protocol=source, metric=metric)
+                           else f"{kind} {sig:g}h", protocol=source, metric=metric,
+                           split="tuning")
                 for tcol, ours in THESIS_COLUMNS:
                     row[f"thesis {tcol}"] = _thesis_value(table, tm, metric, tcol, sig)
                     row[f"here {tcol}"] = _val(c, ours, key)

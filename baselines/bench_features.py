@@ -648,6 +648,7 @@ def _markdown(quick, seed, sm, hm, summary, sharp_rows, smooth_rows, hole_rows,
     for key, meth in (("smooth, flagged %", sm), ("closed, flagged %", hm)):
         md += [f"### {key} (nothing to find: lower is better)", "",
                harness.split_table(sp[key], meth, "min", fmt="{:.2f}"), ""]
+    md += _by_sampling(sharp_rows, hole_rows, sm, hm)
     md += ["## Targets (held-out, defaults)", ""]
     for t in tg["sharp"]:
         if not t["ok"]:
@@ -690,6 +691,33 @@ def _markdown(quick, seed, sm, hm, summary, sharp_rows, smooth_rows, hole_rows,
         md += _margin_section(margins, [d for d in sharp_rows if d["split"] == "tuning"], sm)
     md += _table71(timing)
     return md
+
+
+def _by_sampling(sharp_rows, hole_rows, sm, hm) -> list[str]:
+    """Mean held-out F1 per sampling style: the evidence a rule keyed on the
+    sampling style needs (it stays only if it wins on styles it never saw)."""
+    out = []
+    for title, rows, meths in (("sharp features", sharp_rows, sm),
+                               ("hole boundaries", hole_rows, hm)):
+        held = [d for d in rows if d["split"] == "held-out"]
+        styles = sorted({d["spec"]["sampling"] if d["spec"]["source"].startswith(
+            ("shape:", "surface:")) else "mesh vertices" for d in held})
+        body = []
+        for st in styles:
+            sel = [d for d in held if (d["spec"]["sampling"] if d["spec"]["source"]
+                                       .startswith(("shape:", "surface:"))
+                                       else "mesh vertices") == st]
+            body.append([st, len(sel)] + [
+                float(np.mean([d["results"][m]["f1"] for d in sel
+                               if "f1" in d["results"].get(m, {})]))
+                if any("f1" in d["results"].get(m, {}) for d in sel) else None
+                for m in meths])
+        if body:
+            out += [f"### Held-out {title} by sampling style (mean F1)", "",
+                    harness.markdown_table(["sampling", "cases"] + list(meths), body,
+                                           best={2 + i: "max" for i in range(len(meths))},
+                                           fmt="{:.3f}"), ""]
+    return out
 
 
 def _table71(timing) -> list[str]:

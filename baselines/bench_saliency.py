@@ -370,7 +370,11 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
            "* Tuning methods with a higher mean AUC than ours: "
            + (", ".join(sorted(m for m in PAPERS + BASELINES
                                if tun.get(m) is not None and tun["ours"] is not None
-                               and tun[m] > tun["ours"])) or "none") + ".", ""]
+                               and tun[m] > tun["ours"])) or "none") + ".",
+           "* The thesis' own choices against the defaults (mean AUC, tuning / "
+           "held-out): " + "; ".join(
+               f"{m} {_f(tun.get(m))} / {_f(held.get(m))}" for m in meths
+               if m in OURS or m == PRESET) + ".", ""]
     md += _table51(held, tun)
     if unver:
         md += ["## Side signal: per-face maps of unknown origin", "",
