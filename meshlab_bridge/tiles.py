@@ -423,6 +423,9 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
 
     spec = _spec(registry, name)
     resolved = spec.resolve(dict(params or {}))
+    if resolved.pop("preset", None) is not None:
+        raise InvalidParameterError(f"{spec.command}: preset is not available with tiles; "
+                                    "give its parameters explicitly")
     own = scratch is None
     scratch = tempfile.mkdtemp(prefix="pcprep-tiles-") if own else scratch
     try:
