@@ -75,11 +75,14 @@ class Param:
         return f"{lb}{lo}, {hi}{rb}"
 
 
-def resolve_params(params: tuple[Param, ...], given: dict, func: str) -> dict:
+def resolve_params(params: tuple[Param, ...], given: dict, func: str,
+                   presets: dict[str, dict] | None = None) -> dict:
     """Validate ``given`` (name → value) against ``params``; fill in defaults.
 
-    Unknown names raise ``InvalidParameterError`` listing the known ones.
-    Returns a new dict in declaration order.
+    With ``presets`` (a filter's ``.presets``) and ``given["preset"]`` set, the
+    preset's values come before the defaults, as in a direct call.  Unknown
+    names raise ``InvalidParameterError`` listing the known ones.  Returns a new
+    dict in declaration order.
     """
     known = {p.name for p in params}
     unknown = sorted(set(given) - known)
@@ -88,6 +91,9 @@ def resolve_params(params: tuple[Param, ...], given: dict, func: str) -> dict:
             f"{func}: unknown parameter(s) {', '.join(map(repr, unknown))}; "
             f"known: {', '.join(sorted(known))}"
         )
+    if presets and given.get("preset") is not None:
+        chosen = next(p for p in params if p.name == "preset").check(given["preset"], func)
+        given = {**presets[chosen], **given}
     return {p.name: p.check(given.get(p.name, p.default), func) for p in params}
 
 
@@ -145,7 +151,14 @@ def _literal(text: str):
         return _FROM_FUNCTION  # equal to no default
 
 
-def validate_params(*constraints: Param) -> Callable:
+#: the constraint of the ``preset`` parameter every filter with presets declares
+def preset_param(presets: dict[str, dict]) -> Param:
+    """``Param`` of a filter's ``preset`` argument: one of the preset names, or None."""
+    return Param("preset", str, choices=tuple(presets), optional=True)
+
+
+def validate_params(*constraints: Param, presets: dict[str, dict] | None = None
+                    ) -> Callable:
     """Bind a filter's keyword-only parameters to their constraints.
 
     Every keyword-only argument of the decorated function needs exactly one
@@ -157,6 +170,14 @@ def validate_params(*constraints: Param) -> Callable:
     names, wrong types and out-of-range values raise ``InvalidParameterError``
     naming the function, the parameter, the allowed range and the value given.
     The filled declarations are ``wrapper.params``.
+
+    ``presets`` maps a preset name to parameter values (e.g. ``"thesis"``: the
+    method as printed).  The function then has a ``preset`` argument (declared
+    with ``preset_param``); a call with ``preset=name`` takes that preset's
+    values for every parameter the caller did not give, so an explicit argument
+    always wins, and the function still sees ``preset`` to switch the steps
+    that are not parameters.  Every preset value is checked when the module is
+    imported.  The presets are ``wrapper.presets``.
     """
 
     def decorate(func: Callable) -> Callable:
@@ -185,6 +206,15 @@ def validate_params(*constraints: Param) -> Callable:
             p.check(default, name)  # a default outside its own range is a bug
             filled.append(p)
         params = tuple(filled)
+        table = {k: dict(v) for k, v in (presets or {}).items()}
+        if table and "preset" not in declared:
+            raise TypeError(f"{name}: presets given but no 'preset' parameter")
+        by_name = {p.name: p for p in params}
+        for pname, values in table.items():
+            for key, value in values.items():
+                if key not in by_name or key == "preset":
+                    raise TypeError(f"{name}: preset {pname!r} sets unknown {key!r}")
+                by_name[key].check(value, name)
 
         @functools.wraps(func)
         def wrapper(*args, **kwargs):
@@ -197,12 +227,18 @@ def validate_params(*constraints: Param) -> Callable:
                 bound = sig.bind(*args, **kwargs)
             except TypeError as exc:
                 raise InvalidParameterError(f"{name}: {exc}") from None
+            chosen = bound.arguments.get("preset")
+            if chosen is not None and table:
+                chosen = by_name["preset"].check(chosen, name)
+                for key, value in table[chosen].items():
+                    bound.arguments.setdefault(key, value)
             bound.apply_defaults()
             for p in params:
                 bound.arguments[p.name] = p.check(bound.arguments[p.name], name)
             return func(*bound.args, **bound.kwargs)
 
         wrapper.params = params
+        wrapper.presets = table
         return wrapper
 
     return decorate

@@ -27,7 +27,7 @@ from ._denoise_kernels import _Ctx, _prepare
 from ._denoise_project import _pca_normals, _sphere_project
 from ._denoise_steps import PlannedDecisions, _edge_correct, _init_normals, _inner_loop, \
     _inner_pass, _smooth_curvature
-from ._params import Param, validate_params
+from ._params import Param, preset_param, validate_params
 from ._validation import InvalidParameterError
 from .neighbors import orient_normals_mst, tile_exact
 
@@ -44,6 +44,16 @@ RADIUS_FACTOR = 1.5
 CURVED_SAG = 0.05
 #: neighbours of the plain PCA normals that seed the final sphere fit on curved parts
 FIT_PCA_K = 16
+
+#: the method as printed (Algorithm 4.1): λ = 0.2, the component-wise ℓ1 TV of
+#: (4.5), σ_h = 0.7h and σ_d = r = 3h (Table 4.1, fandisk and rocker arm), 16 outer
+#: iterations, the inner loop run to its stopping rule, n⁰ by (4.9), edge correction
+#: (4.18)-(4.19) on, and none of the added steps (curvature offset, final projection,
+#: freezing curved points); k_max wide enough that the 3h ball is not cut
+THESIS = {"lambda_tv": 0.2, "tv_norm": "l1", "sigma_h": 0.7, "sigma_d": 3.0, "radius": 3.0,
+          "n_iter": 16, "curved_iter": 16, "inner_iter": 10, "init_iter": 3,
+          "edge_correction": True, "curvature_offset": False, "final_projection": False,
+          "k_max": 64}
 
 PARAMS = (
     Param("lambda_tv", float, low=0.0, high=100.0),
@@ -65,6 +75,7 @@ PARAMS = (
     Param("tv_norm", str, choices=("l2", "l1"), advanced=True),
     Param("k_max", int, low=4, high=512, unit="count", advanced=True),
     Param("final_projection", bool, advanced=True),
+    preset_param({"thesis": THESIS}),
 )
 
 
@@ -130,7 +141,7 @@ class _Config:
     final_projection: bool
 
 
-@validate_params(*PARAMS)
+@validate_params(*PARAMS, presets={"thesis": THESIS})
 def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: float = 0.6,
                   sigma_d: float = 2.0, radius: float | None = None,
                   sigma_n_deg: float = 15.0, rho: float = 0.7, delta: float = 1e-4,
@@ -138,7 +149,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
                   curved_iter: int = 2, inner_iter: int = 2, init_iter: int = 3,
                   tol: float = 1e-3, edge_correction: bool = False,
                   curvature_offset: bool = True, tv_norm: str = "l2", k_max: int = 32,
-                  final_projection: bool = True) -> DenoiseResult:
+                  final_projection: bool = True, preset: str | None = None
+                  ) -> DenoiseResult:
     """Denoise a point cloud, preserving sharp edges (Leal Narváez 2020, Algorithm 4.1).
 
     Per point, n_i and τ_i minimise (4.5), Σ_j |h_ij − τ_i| ψ θ + λ Σ_j w_ij ‖n_i − n_j‖
@@ -191,6 +203,10 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
         Most neighbours per point (the radius neighbourhood keeps the k_max nearest).
     final_projection : bool, default=True
         Finish by projecting each input point onto a sphere fitted to its neighbours.
+    preset : {"thesis"}, optional
+        "thesis": Algorithm 4.1 as printed (λ = 0.2, ℓ1 TV, σ_h = 0.7, σ_d = r = 3,
+        16 iterations, edge correction, no added steps); explicit parameters
+        override it.
 
     Returns
     -------
@@ -228,8 +244,8 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
 
 
 #: the parameters as the signature declares them (defaults of the private path)
-_DEFAULTS = _Config(**{p.name: p.default for p in denoise_l1_tv.params})
-_FIELDS = tuple(p.name for p in denoise_l1_tv.params)
+_FIELDS = tuple(p.name for p in denoise_l1_tv.params if p.name != "preset")
+_DEFAULTS = _Config(**{p.name: p.default for p in denoise_l1_tv.params if p.name in _FIELDS})
 
 
 def _denoise(points, normals, cfg: _Config) -> DenoiseResult:
@@ -363,7 +379,7 @@ def denoise_tile(points, normals, lo, hi, core, *, centre, h: float, n_total: in
     :func:`denoise_l1_tv`'s, checked by the caller.
     """
     func = "denoise_l1_tv"
-    cfg = replace(_DEFAULTS, **params)
+    cfg = replace(_DEFAULTS, **{k: v for k, v in params.items() if k != "preset"})
     k_all = min(max(cfg.k_max, 7), n_total)
     if len(points) < k_all:
         return {"exact": False}

@@ -29,7 +29,7 @@ import numpy as np
 
 from ._border import (border_distance, border_gap, border_radius, strip_extent,
                       track_border)
-from ._params import Param, resolve_params, validate_params
+from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
                          score_rows)
@@ -67,9 +67,21 @@ class _HoleRules:
     support: bool = True         # detected neighbours along the border (min_support)
     smallest_hole: bool = True   # border radius on random-like sampling (min_radius)
     border_row: bool = True      # border row and tracking on mesh-like sampling
+    second_split: bool = True    # without the strip test, Otsu again inside the upper class
+    tangential_shift: bool = True  # shift in the tangent plane / r, not ‖p̄ − p_i‖/h (7.7)
 
 
 DEFAULT_RULES = _HoleRules()
+#: the thesis' method: the printed descriptors (7.5)-(7.7) and one threshold
+THESIS_RULES = _HoleRules(rim_distance=False, strip_extent=False, flatness=False,
+                          support=False, smallest_hole=False, border_row=False,
+                          second_split=False, tangential_shift=False)
+
+#: the method as printed (§7.3.4), with (7.12)-(7.13) read as the mirror of
+#: (7.10): Lasso coding (λ = 0.01), S = 100 atoms, the atom count (7.8), and the
+#: automatic threshold (Otsu) the thesis names for β
+THESIS = {"coder": "lasso_lars", "alpha": 0.005, "score": "count", "beta": None,
+          "n_atoms": 100, "n_scales": 10, "min_shift": 0.0}
 
 PARAMS = (
     Param("min_shift", float, low=0.0, high=1.0, unit="fraction"),
@@ -80,6 +92,7 @@ PARAMS = (
     Param("min_radius", float, low=0.0, high=1000.0, unit="h", optional=True),
     Param("row_angle", float, low=0.0, high=360.0, unit="deg"),
     *SCORE_PARAMS,
+    preset_param({"thesis": THESIS}),
 )
 
 
@@ -151,7 +164,7 @@ class HoleResult(Detection):
 
 
 def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
-                  tree=None) -> HoleFeatures:
+                  tree=None, tangential: bool = True) -> HoleFeatures:
     """Features (7.5)-(7.7) of every point at every scale, and the per-point
     quantities of the localisation tests.
 
@@ -168,6 +181,9 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
     h : float, optional
         Average spacing (mean distance to the 6 nearest neighbours by default).
     tree : cKDTree, optional
+    tangential : bool
+        The shift column: its tangent-plane part divided by r (the default), or
+        the printed ‖p̄ − p_i‖ (7.7) divided by h (the thesis preset).
 
     Returns
     -------
@@ -199,8 +215,10 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
         r = np.maximum(m.dist[:, ks - 1], 1e-300)               # radius of the scale
         shift_t = np.sqrt(np.maximum(np.einsum("csd,csd->cs", mean, mean)
                                      - shift_n ** 2, 0.0))
+        shift = (shift_t / r if tangential
+                 else np.sqrt(np.einsum("csd,csd->cs", mean, mean)) / h)
         f = np.stack([np.abs(lam[..., 2] - 2.0 * lam[..., 1]) / l2s,
-                      kf[None, :] / (np.pi * r * r), shift_t / r], axis=-1)
+                      kf[None, :] / (np.pi * r * r), shift], axis=-1)
         out[s:e] = f.reshape(e - s, -1)
         extent[s:e] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
         variation[s:e] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
@@ -231,7 +249,7 @@ def _threshold(score: np.ndarray, cfg: _HoleConfig, rules: _HoleRules) -> float:
     if cfg.beta is not None:
         return float(cfg.beta * score.max())
     T = otsu_threshold(score)
-    if not rules.strip_extent and (score > T).sum() > 1:
+    if rules.second_split and not rules.strip_extent and (score > T).sum() > 1:
         T = otsu_threshold(score[score > T])
     return T
 
@@ -321,7 +339,7 @@ def _run(points, normals, cfg: _HoleConfig, stage: ScoreConfig,
     pts, tree = prepare_cloud(points, normals, k_min=stage.k_min, k_max=stage.k_max,
                               func=_FUNC)
     ks = scale_sizes(stage.k_min, stage.k_max, stage.n_scales)
-    feats = hole_features(pts, ks, tree=tree)
+    feats = hole_features(pts, ks, tree=tree, tangential=rules.tangential_shift)
     log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
     bdist = _rim_distance(feats.features, ks) if rules.rim_distance else None
     # oriented and standardised in place: _select needs only the per-point
@@ -331,7 +349,7 @@ def _run(points, normals, cfg: _HoleConfig, stage: ScoreConfig,
     return _select(pts, ks, feats, bdist, codes, cfg, rules)
 
 
-@validate_params(*PARAMS)
+@validate_params(*PARAMS, presets={"thesis": THESIS})
 def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
                            rim_width: float = 2.0, extent_width: float = 1.4,
                            max_variation: float = 0.13, min_support: int = 2,
@@ -339,8 +357,8 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
                            n_scales: int = 10, k_min: int = 16, k_max: int = 80,
                            n_atoms: int = 100, coder: str = "omp", alpha: float = 0.01,
                            tol: float = 0.3, score: str = "l1", beta: float | None = None,
-                           max_iter: int = 10, max_train: int = 4000, seed: int | None = 0
-                           ) -> HoleResult:
+                           max_iter: int = 10, max_train: int = 4000, seed: int | None = 0,
+                           preset: str | None = None) -> HoleResult:
     """Detect hole rims and open borders by the rarity of multi-scale codes (§7.3.4).
 
     Parameters
@@ -385,6 +403,11 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
         Points in the K-SVD training subsample.
     seed : int or None, default=0
         Seeds the K-SVD subsample and initialisation (None: fresh entropy).
+    preset : {"thesis"}, optional
+        "thesis": the method as printed — the descriptors (7.5)-(7.7) with the
+        untouched centroid shift ‖p̄ − p_i‖, Lasso coding (λ = 0.01), the atom
+        count (7.8), f above Otsu's split, none of the added tests; parameters
+        given explicitly override it.
 
     Returns
     -------
@@ -425,7 +448,8 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
                       min_radius, row_angle, beta)
     stage = ScoreConfig(n_scales, k_min, k_max, n_atoms, coder, alpha, tol, score,
                         max_iter, max_train, seed)
-    return _run(points, normals, cfg, stage, DEFAULT_RULES)
+    return _run(points, normals, cfg, stage,
+                THESIS_RULES if preset == "thesis" else DEFAULT_RULES)
 
 
 def _detect(points, normals=None, *, rules: _HoleRules = DEFAULT_RULES,
@@ -433,5 +457,6 @@ def _detect(points, normals=None, *, rules: _HoleRules = DEFAULT_RULES,
     """``detect_hole_boundaries`` with the steps of ``rules`` (the benchmark's
     ablation rows).  ``params`` are its keywords, validated as there."""
     kw = resolve_params(detect_hole_boundaries.params, params, _FUNC)
+    kw.pop("preset")  # the ablation rows name their rules and values themselves
     own = {f.name: kw.pop(f.name) for f in fields(_HoleConfig)}
     return _run(points, normals, _HoleConfig(**own), ScoreConfig(**kw), rules)

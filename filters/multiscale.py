@@ -139,15 +139,18 @@ class ScaleMoments:
     normal: np.ndarray
 
 
-def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None
-                  ) -> Iterator[ScaleMoments]:
+def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
+                  weighted: bool = False) -> Iterator[ScaleMoments]:
     """Centroid and covariance of every point's neighbourhood at every scale.
 
     One k-NN query with ``k = ks[-1]`` (neighbours sorted by distance) serves
     all scales: block sums of ``x = p_j − p_i`` and of ``x xᵀ`` between
     consecutive sizes, accumulated over the blocks, give each scale's mean and
     covariance in O(n·k_max).  The covariance is (7.1) with uniform weights
-    (see docs/decisions/features.md, section "Uniform weights in (7.1)").
+    (see docs/decisions/features.md, section "Uniform weights in (7.1)");
+    ``weighted`` gives (7.1) as printed, each scale's own pass in O(n·k):
+    ``w_j = exp(−d_j²/s²)``, d_j = ‖p_j − p̄‖, with s the scale's mean d_j
+    where the thesis writes the count k_i (a length, as for (6.1)).
 
     Parameters
     ----------
@@ -184,8 +187,23 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None
             cij = (s2 / kf - mean[i] * mean[j]) * corr
             cov[..., i, j] = cij
             cov[..., j, i] = cij
+        if weighted:
+            cov = _weighted_covariances(x, ks, np.moveaxis(mean, 0, -1), corr)
         lam, nrm = sym3_eig(cov)                                # (c, S, 3)
         yield ScaleMoments(s, e, dist, idx, x, np.moveaxis(mean, 0, -1), lam, nrm)
+
+
+def _weighted_covariances(x: np.ndarray, ks: np.ndarray, mean: np.ndarray,
+                          corr: np.ndarray) -> np.ndarray:
+    """(7.1) with w_j = exp(−d_j²/s²) about each scale's centroid: (c, S, 3, 3)."""
+    cov = np.empty((len(x), len(ks), 3, 3))  # noqa: NPY-empty -- every scale written
+    for j, k in enumerate(ks):
+        y = x[:, :k] - mean[:, j, None, :]                      # p_j − p̄
+        d2 = np.einsum("ckd,ckd->ck", y, y)
+        s2 = np.maximum(np.sqrt(d2).mean(axis=1), 1e-300) ** 2
+        w = np.exp(-d2 / s2[:, None])
+        cov[:, j] = np.einsum("ck,ckd,cke->cde", w, y, y) / k * corr[j]
+    return cov
 
 
 # ---------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import progress
-from ._params import Param, validate_params
+from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
 from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst, spacing_from_rows, \
@@ -37,6 +37,11 @@ MIN_POINTS = 10
 LASSO_ITER = 32
 LASSO_TOL = 1e-7
 
+#: the method as printed (§5.3): the MDL product (5.7) and mean accumulation, with
+#: the thesis' λ = 0.9; the radius stays a multiple of h (the thesis' density- and
+#: curvature-adaptive radius is not reproduced)
+THESIS = {"measure": "mdl", "accumulation": "mean", "alpha": 0.9}
+
 PARAMS = (
     Param("radius", float, low=1.0, high=50.0, unit="h"),
     Param("n_rays", int, low=3, high=32, unit="count"),
@@ -45,6 +50,7 @@ PARAMS = (
     Param("accumulation", str, choices=("quantile", "mean")),
     Param("acc_quantile", float, low=0.0, high=1.0, unit="fraction", advanced=True),
     Param("k_max", int, low=8, high=512, unit="count", advanced=True),
+    preset_param({"thesis": THESIS}),
 )
 
 
@@ -280,11 +286,11 @@ def _normalise(v: np.ndarray) -> np.ndarray:
     return v / top if top > 0 else np.zeros_like(v, dtype=np.float64)
 
 
-@validate_params(*PARAMS)
+@validate_params(*PARAMS, presets={"thesis": THESIS})
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
                         alpha: float = 0.9, measure: str = "residual",
                         accumulation: str = "quantile", acc_quantile: float = 0.1,
-                        k_max: int = 32) -> SaliencyResult:
+                        k_max: int = 32, preset: str | None = None) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (Leal Narváez 2020, ch. 5).
 
     Per point: the descriptor F = (n, K r², d) — oriented unit normal, Gaussian
@@ -317,6 +323,9 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
         Most neighbours kept within the radius (the nearest).
+    preset : {"thesis"}, optional
+        "thesis": the MDL product (5.7) and mean accumulation; explicit
+        parameters override it.
 
     Returns
     -------
@@ -434,7 +443,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
                   radius: float = 3.0,
                   n_rays: int = 8, alpha: float = 0.9, measure: str = "residual",
                   accumulation: str = "quantile", acc_quantile: float = 0.1,
-                  k_max: int = 32) -> dict:
+                  k_max: int = 32, preset: str | None = None) -> dict:
     """One tile of a tiled :func:`saliency_sparse_mdl` run (meshlab_bridge/tiles.py).
 
     The filter has two cloud-wide values: F̄_g, the mean descriptor behind the
@@ -448,6 +457,8 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     residual, ‖α‖₀ and the accumulated, not yet normalised S_T; the caller
     divides by the cloud-wide maxima.  Both return ``exact`` (False: a core row
     depends on points outside the box ``[lo, hi]``) and ``sure`` (exact rows).
+    ``preset`` is accepted with the resolved parameters, whose values already
+    carry it.
     """
     pts = np.asarray(points, dtype=np.float64) - np.asarray(centre)
     k_all = min(max(k_max, SPACING_K + 1), n_total)

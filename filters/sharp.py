@@ -26,7 +26,7 @@ import numpy as np
 
 from ._crease import (crease_distance, localisation_k, noise_level, normal_spread,
                       plane_k, two_plane_distance)
-from ._params import Param, resolve_params, validate_params
+from ._params import Param, preset_param, resolve_params, validate_params
 from ._validation import PointCloudError
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
@@ -64,9 +64,19 @@ class _SharpRules:
     two_plane: bool = True        # the two-plane crease model where it fits
     row_by_sampling: bool = True  # row_width on regularly sampled clouds
     angle_gate: bool = True       # the crease-angle gate (min_angle)
+    uniform_pca: bool = True      # uniform weights in (7.1), not the printed Gaussian
 
 
 DEFAULT_RULES = _SharpRules()
+#: the thesis' method has none of the added steps
+THESIS_RULES = _SharpRules(localise=False, two_plane=False, row_by_sampling=False,
+                           angle_gate=False, uniform_pca=False)
+
+#: the method as printed (§7.3-§7.4.1): Lasso coding with λ = 0.01 (λ = 2·alpha in
+#: the ½‖·‖² convention of ``sparse.lasso_lars``), S = 100 atoms, ten scales, the
+#: atom count (7.8) and T = β·max f (7.10) with the β = 0.02 of Figure 7.2
+THESIS = {"coder": "lasso_lars", "alpha": 0.005, "score": "count", "beta": 0.02,
+          "n_atoms": 100, "n_scales": 10, "min_angle": 0.0}
 
 PARAMS = (
     Param("crease_width", float, low=0.0, high=100.0, closed="right", unit="h"),
@@ -75,6 +85,7 @@ PARAMS = (
     Param("min_angle", float, low=0.0, high=90.0, unit="deg"),
     Param("otsu_scale", float, low=0.0, high=1.0, closed="right", optional=True),
     *SCORE_PARAMS,
+    preset_param({"thesis": THESIS}),
 )
 
 
@@ -145,7 +156,7 @@ class SharpResult(Detection):
 
 
 def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
-                   tree=None) -> SharpFeatures:
+                   tree=None, weighted: bool = False) -> SharpFeatures:
     """Features (7.1)-(7.4) of every point at every scale.
 
     Per scale: λ0/h², λ0/λ2, σ = λ0/(λ0 + λ1 + λ2) (7.2) and Pd/h with
@@ -162,6 +173,8 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
         neighbours over the points that are not isolated
         (``neighbors.spacing_from_rows``), taken from the same query.
     tree : cKDTree, optional
+    weighted : bool
+        The Gaussian weights of (7.1) as printed (``scale_moments``).
 
     Returns
     -------
@@ -185,7 +198,7 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     rows = np.empty(n) if own_h else None  # noqa: NPY-empty -- every entry written below
     j_nrm = int(np.argmin(np.abs(ks - _NORMAL_K)))
     hsum = 0.0
-    for m in scale_moments(points, ks, tree=tree):
+    for m in scale_moments(points, ks, tree=tree, weighted=weighted):
         s, e = m.start, m.stop
         if own_h:
             hsum += float(m.dist[:, 1:SPACING_K + 1].sum())
@@ -285,7 +298,7 @@ def _run(points, normals, cfg: _SharpConfig, stage: ScoreConfig,
     pts, tree = prepare_cloud(points, normals, k_min=stage.k_min, k_max=stage.k_max,
                               func=_FUNC)
     ks = scale_sizes(stage.k_min, stage.k_max, stage.n_scales)
-    feats = sharp_features(pts, ks, tree=tree)
+    feats = sharp_features(pts, ks, tree=tree, weighted=not rules.uniform_pca)
     log.info("%s: n=%d h=%.4g scales=%s", _FUNC, len(pts), feats.h, ks.tolist())
     # the features are standardised in place: _select needs only the columns
     # kept apart in ``feats``
@@ -294,15 +307,15 @@ def _run(points, normals, cfg: _SharpConfig, stage: ScoreConfig,
     return _select(pts, tree, ks, feats, codes, cfg, rules)
 
 
-@validate_params(*PARAMS)
+@validate_params(*PARAMS, presets={"thesis": THESIS})
 def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
                           plane_width: float = 1.0, row_width: float = 0.5,
                           min_angle: float = 25.0, otsu_scale: float | None = None,
                           n_scales: int = 10, k_min: int = 8, k_max: int = 40,
                           n_atoms: int = 100, coder: str = "omp", alpha: float = 0.01,
                           tol: float = 0.1, score: str = "l1", beta: float | None = None,
-                          max_iter: int = 10, max_train: int = 4000, seed: int | None = 0
-                          ) -> SharpResult:
+                          max_iter: int = 10, max_train: int = 4000, seed: int | None = 0,
+                          preset: str | None = None) -> SharpResult:
     """Detect sharp edges and corners by the code length of multi-scale features (§7.3).
 
     Parameters
@@ -343,6 +356,10 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
         Points in the K-SVD training subsample.
     seed : int or None, default=0
         Seeds the K-SVD subsample and initialisation (None: fresh entropy).
+    preset : {"thesis"}, optional
+        "thesis": the method as printed — the weighted PCA (7.1), Lasso coding
+        (λ = 0.01), the atom count (7.8), T = 0.02·max f (7.10), none of the added
+        gates; parameters given explicitly override it.
 
     Returns
     -------
@@ -386,7 +403,8 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
     cfg = _SharpConfig(crease_width, plane_width, row_width, min_angle, otsu_scale, beta)
     stage = ScoreConfig(n_scales, k_min, k_max, n_atoms, coder, alpha, tol, score,
                         max_iter, max_train, seed)
-    return _run(points, normals, cfg, stage, DEFAULT_RULES)
+    return _run(points, normals, cfg, stage,
+                THESIS_RULES if preset == "thesis" else DEFAULT_RULES)
 
 
 def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
@@ -394,5 +412,6 @@ def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
     """``detect_sharp_features`` with the steps of ``rules`` (the benchmark's
     ablation rows).  ``params`` are its keywords, validated as there."""
     kw = resolve_params(detect_sharp_features.params, params, _FUNC)
+    kw.pop("preset")  # the ablation rows name their rules and values themselves
     own = {f.name: kw.pop(f.name) for f in fields(_SharpConfig)}
     return _run(points, normals, _SharpConfig(**own), ScoreConfig(**kw), rules)

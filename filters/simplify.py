@@ -20,12 +20,17 @@ import numpy as np
 
 from . import progress
 from . import _kernels, sparse
-from ._params import Param, resolve_params, validate_params
+from ._params import Param, preset_param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
 from .neighbors import CHUNK, build_tree, knn, spacing_from_rows, weighted_pca
 
 log = logging.getLogger("pcprep")
+
+#: the method as printed (§6.3): unscaled features (6.1)-(6.4), S = 200 atoms,
+#: λ = 0.5 (λ = 2·alpha in the ½‖·‖² convention of ``sparse.lasso_lars``) and the
+#: radius ρ_i = δ/Sf_i in units of h alone
+THESIS = {"feature_scale": "thesis", "density_adapt": 0.0, "n_atoms": 200, "alpha": 0.25}
 
 PARAMS = (
     Param("ratio", float, low=0.0, high=1.0, closed="neither", unit="fraction",
@@ -41,6 +46,7 @@ PARAMS = (
     Param("max_iter", int, low=1, high=200, advanced=True),
     Param("max_train", int, low=100, unit="count", advanced=True),
     Param("seed", int, low=0, optional=True),
+    preset_param({"thesis": THESIS}),
 )
 
 
@@ -314,14 +320,14 @@ GRAPH_K = 32
 
 
 # --------------------------------------------------------------------------- main
-@validate_params(*PARAMS)
+@validate_params(*PARAMS, presets={"thesis": THESIS})
 def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
                   count: int | None = None, delta: float | None = None, k: int = 16,
                   n_atoms: int = 200, alpha: float = 0.25,
                   feature_scale: str = "balanced", density_adapt: float = 0.5,
                   sf_floor: float = 0.3,
                   max_iter: int = 5, max_train: int = 10000,
-                  seed: int | None = 0) -> SimplifyResult:
+                  seed: int | None = 0, preset: str | None = None) -> SimplifyResult:
     """Simplify a point cloud by sparse-coding saliency (SDBS, Leal Narváez 2020, ch. 6).
 
     Features F = (n, σ, p) per point from a weighted PCA (6.1)-(6.4); a K-SVD
@@ -363,6 +369,9 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
         Size of the random subsample that trains the dictionary.
     seed : int or None, default=0
         Seed of the K-SVD subsample and initialisation; None draws fresh entropy.
+    preset : {"thesis"}, optional
+        "thesis": unscaled features, S = 200, λ = 0.5 and ρ_i = δ/Sf_i in h;
+        explicit parameters override it.
 
     Returns
     -------

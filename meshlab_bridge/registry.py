@@ -91,7 +91,8 @@ class FilterSpec:
 
     def resolve(self, params: dict) -> dict:
         """Validate ``params`` against the declaration and fill in defaults."""
-        return resolve_params(self.params, params, self.name)
+        return resolve_params(self.params, params, self.name,
+                              getattr(self.func, "presets", None))
 
 
 FILTERS: dict[str, FilterSpec] = {}

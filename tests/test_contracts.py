@@ -4,6 +4,7 @@ bad clouds rejected, inputs untouched, outputs finite and deterministic, and
 the MeshSet bridge and the CLI give the same answer as the NumPy function."""
 
 import argparse
+import importlib
 import inspect
 
 import numpy as np
@@ -84,7 +85,8 @@ def test_parameters_are_declared_once(spec):
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     flags = {a.dest: a for a in sub.choices[spec.command]._actions if a.option_strings}
     assert set(flags) - {"help", "quiet", "drop_nonfinite", "out_dir", "format",
-                         "save_mlx"} == set(keyword)
+                         "save_mlx", "tiles", "workers", "scheduler",
+                         "memory_budget"} == set(keyword)
     for p in spec.params:
         assert f"--{p.name.replace('_', '-')}" in flags[p.name].option_strings
         assert tuple(flags[p.name].choices or ()) == p.choices
@@ -220,3 +222,47 @@ def test_detectors_find_their_features_and_nothing_where_there_is_none(command, 
         else:
             assert not truth.any()
             assert mask.mean() < 0.03, (name, mask.mean())
+
+
+# --------------------------------------------------------------------------- presets
+def _preset_specs():
+    from pcprep.meshlab_bridge.registry import load_all
+
+    return [s for s in load_all().values() if getattr(s.func, "presets", None)]
+
+
+@pytest.mark.parametrize("spec", _preset_specs(), ids=lambda s: s.command)
+def test_thesis_preset_sets_its_values_and_explicit_arguments_win(spec):
+    """``preset="thesis"`` fills the parameters the caller left out, through a
+    direct call's resolution and the bridge's alike; a given value wins."""
+    table = spec.func.presets["thesis"]
+    assert table, spec.name
+    resolved = spec.resolve({"preset": "thesis"})
+    for key, value in table.items():
+        assert resolved[key] == value, key
+    key, value = next(iter(table.items()))
+    default = next(p.default for p in spec.params if p.name == key)
+    assert spec.resolve({"preset": "thesis", key: default})[key] == default
+    assert spec.resolve({})["preset"] is None
+    with pytest.raises(InvalidParameterError, match="preset"):
+        spec.resolve({"preset": "paper"})
+
+
+@pytest.mark.parametrize("spec", _preset_specs(), ids=lambda s: s.command)
+def test_thesis_preset_call_equals_the_call_with_its_values(spec):
+    s = make_shape("fandisk", n=1500, seed=4)
+    kw = dict(spec.example)
+    if spec.command == "simplify":
+        kw.setdefault("ratio", 0.2)
+    table = spec.func.presets["thesis"]
+    a = spec.func(s.points, preset="thesis", **kw)
+    module = importlib.import_module(spec.func.__module__)
+    if hasattr(module, "THESIS_RULES"):  # the preset also switches the added steps off
+        b = module._detect(s.points, rules=module.THESIS_RULES, **{**table, **kw})
+    else:
+        b = spec.func(s.points, **{**table, **kw})
+    c = spec.func(s.points, **kw)
+    field = spec.index_field or spec.mask_field or spec.scalar_field or "points"
+    va, vb, vc = (np.asarray(getattr(r, field)) for r in (a, b, c))
+    assert np.array_equal(va, vb)
+    assert va.shape != vc.shape or not np.array_equal(va, vc)  # the preset changes the run
