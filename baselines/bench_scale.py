@@ -7,7 +7,7 @@ airborne-like LAZ clouds through the tiled filters, on local Dask clusters of
 time per million points, the serial fraction (streamed ingest, tile index,
 driver work between passes, streamed write) and, from it, the projected time of
 a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report).
-Writes reports/scale.md and reports/scale.json.
+Writes scale.md and scale.json into the output folder (reports/, or reports/quick with --quick).
 """
 
 from __future__ import annotations
