@@ -27,7 +27,7 @@ log = logging.getLogger("pcprep")
 #: point counts of the full run and of --quick
 SIZES = (1_000_000,)
 QUICK_SIZES = (100_000,)
-FILTERS = ("outliers", "denoise", "saliency")
+FILTERS = ("outliers", "denoise", "saliency", "features", "holes")
 #: core points per tile
 TILE = 200_000
 QUICK_TILE = 25_000

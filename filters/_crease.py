@@ -25,7 +25,7 @@ _PLANE_NOISE_GAIN = 5.0
 #: k-planes refinement passes of the two-plane fit
 _PLANE_ITERS = 3
 #: neighbours over which the spread of the PCA normals is measured
-_SPREAD_K = 32
+SPREAD_K = 32
 
 
 def noise_level(lambda0_h2: np.ndarray) -> float:
@@ -223,7 +223,7 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
 
 
 def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
-                  k: int = _SPREAD_K, tree=None) -> np.ndarray:
+                  k: int = SPREAD_K, tree=None) -> np.ndarray:
     """Angle in degrees by which the normals turn within each selected point's
     neighbourhood.
 

@@ -221,7 +221,6 @@ def _prepare(points, normals, k_max: int, func: str, tile=None):
     tree = build_tree(x)
     itype = np.int32 if len(x) < 2**31 else np.int64
     idx = np.empty((len(x), k), dtype=itype)  # noqa: NPY-empty -- filled by chunks
-    dsum = 0.0
     rows = np.zeros(len(x))
     kth = np.zeros(len(x))
     for s in range(0, len(x), QUERY_CHUNK):  # chunked: float64 distances stay small
@@ -230,13 +229,12 @@ def _prepare(points, normals, k_max: int, func: str, tile=None):
         idx[s:s + QUERY_CHUNK] = ii
         kth[s:s + QUERY_CHUNK] = dist[:, -1]
         if tile is None:
-            dsum += float(dist[:, 1:SPACING_K + 1].sum())
             rows[s:s + QUERY_CHUNK] = dist[:, 1:SPACING_K + 1].mean(axis=1)
     del tree, dist, ii
     if tile is not None:
         h = h_all
         return x / h, None if nrm is None else nrm[perm], centre, h, idx, perm, kth / h
-    h = spacing_from_rows(rows, dsum / (len(x) * SPACING_K))
+    h = spacing_from_rows(rows)
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError(
             f"{func}: every point coincides with its neighbours (h = 0)")

@@ -134,6 +134,11 @@ class HoleFeatures:
         Mean shift / r over the scales, the input of the ``min_shift`` test,
         kept apart from ``features``, which the detector orients and
         standardises in place to stay within one copy of the feature matrix.
+    reach : (n,) float
+        Distance to the largest scale's last neighbour: every feature of the
+        row reads only points within it (a tiled run checks its halo with it).
+    nearest : (n,) float
+        Distance to the nearest neighbour (the input of ``close_fraction``).
     """
 
     features: np.ndarray
@@ -143,6 +148,8 @@ class HoleFeatures:
     near: np.ndarray
     close_fraction: float
     shift_mean: np.ndarray
+    reach: np.ndarray
+    nearest: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -205,9 +212,11 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
     variation = np.empty(n)  # noqa: NPY-empty -- every entry written below
     near = np.empty((n, int(ks[0])), dtype=np.int32)  # noqa: NPY-empty -- all rows set
     nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    reach = np.empty(n)  # noqa: NPY-empty -- every entry written below
     for m in scale_moments(points, ks, tree=tree):
         s, e = m.start, m.stop
         nn1[s:e] = m.dist[:, 1]
+        reach[s:e] = m.dist[:, -1]
         near[s:e] = m.idx[:, :ks[0]]
         lam, mean = m.eigenvalues, m.mean
         l2s = np.maximum(lam[..., 2], 1e-300)
@@ -223,10 +232,14 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
         extent[s:e] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
         variation[s:e] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
     out[:, 1::3] *= h * h                                       # k h² / (π r²)
-    close = float(np.mean(nn1 < _CLOSE_RATIO * np.median(nn1)))
     return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,
-                        near=near, close_fraction=close,
-                        shift_mean=out[:, 2::3].mean(axis=1))
+                        near=near, close_fraction=close_fraction(nn1),
+                        shift_mean=out[:, 2::3].mean(axis=1), reach=reach, nearest=nn1)
+
+
+def close_fraction(nearest: np.ndarray) -> float:
+    """Fraction of the nearest-neighbour distances below 0.3 × their median."""
+    return float(np.mean(nearest < _CLOSE_RATIO * np.median(nearest)))
 
 
 def _orient(F: np.ndarray) -> np.ndarray:
@@ -273,58 +286,83 @@ def _pointwise(mask, feats: HoleFeatures, bdist, cfg: _HoleConfig, rules: _HoleR
         _keep(mask, feats.extent <= cfg.extent_width, "strip extent")
 
 
-def _support(pts, mask, h: float, min_support: int) -> None:
-    """Drop detections with fewer than ``min_support`` others within 3h, in place."""
+def _support(take, mask, h: float, min_support: int) -> None:
+    """Drop detections with fewer than ``min_support`` others within 3h, in place
+    (``take(rows)`` gives the rows' centred positions)."""
     det = np.flatnonzero(mask)
-    support = build_tree(pts[det]).query_ball_point(
-        pts[det], _SUPPORT_RADIUS * h, return_length=True) - 1
+    p = take(det)
+    support = build_tree(p).query_ball_point(
+        p, _SUPPORT_RADIUS * h, return_length=True) - 1
     mask[det[support < min_support]] = False
     log.info("%s: border support keeps %d of %d detected points", _FUNC,
              int(mask.sum()), len(det))
 
 
-def _smallest_hole(pts, mask, h: float, min_radius: float | None) -> None:
+def _smallest_hole(take, mask, n: int, h: float, min_radius: float | None) -> None:
     """Drop the borders of radius below ``min_radius`` h (default 0.3·ln n), in place."""
     r_min = (min_radius if min_radius is not None
-             else _CHANCE_GAP_PER_LOG_N * np.log(len(pts)))
+             else _CHANCE_GAP_PER_LOG_N * np.log(n))
     det = np.flatnonzero(mask)
-    radius = border_radius(pts[det], _SUPPORT_RADIUS * h) / h
+    radius = border_radius(take(det), _SUPPORT_RADIUS * h) / h
     mask[det[radius < r_min]] = False
     log.info("%s: borders of radius >= %.3g h keep %d of %d detected points", _FUNC,
              r_min, int(mask.sum()), len(det))
 
 
-def _border_row(pts, mask, feats: HoleFeatures, row_angle: float) -> np.ndarray:
-    """Keep the detections with an empty angle > ``row_angle``, then add the
-    samples with such an angle chained to them within 1.5h."""
+def _border_row(take, mask, gap: np.ndarray, h: float, row_angle: float) -> np.ndarray:
+    """Keep the detections with an empty angle (``gap``, radians, every row)
+    > ``row_angle``, then add the samples with such an angle chained to them
+    within 1.5h."""
     n_det = int(mask.sum())
-    row = border_gap(pts, feats.near) > np.radians(row_angle)
+    row = gap > np.radians(row_angle)
     mask &= row
     n_row = int(mask.sum())
-    mask = track_border(pts, mask, row, _TRACK_LINK * feats.h)
+    cand = np.flatnonzero(row)
+    out = np.zeros(len(mask), dtype=bool)
+    out[cand[track_border(take(cand), mask[cand], row[cand], _TRACK_LINK * h)]] = True
     log.info("%s: border row (angular gap > %.3g deg) keeps %d of %d detected points; "
              "tracking along it adds %d", _FUNC, row_angle, n_row, n_det,
-             int(mask.sum()) - n_row)
-    return mask
+             int(out.sum()) - n_row)
+    return out
 
 
-def _select(pts, ks, feats: HoleFeatures, bdist, codes: CodeLengths, cfg: _HoleConfig,
-            rules: _HoleRules) -> HoleResult:
-    """Threshold, then the point-wise tests and the tests along the border."""
-    score = codes.score
-    T = _threshold(score, cfg, rules)
-    mask = score > T
-    _pointwise(mask, feats, bdist, cfg, rules)
+def _chains(take, mask, feats: HoleFeatures, gap, cfg: _HoleConfig,
+            rules: _HoleRules) -> np.ndarray:
+    """The tests along the border: support, then the smallest hole (random-like
+    sampling) or the border row (mesh-like).  They read the detected points
+    and the row candidates only, through ``take(rows)``; ``gap()`` gives
+    every row's empty angle.  Border chains are cloud-wide, so a tiled run
+    runs this on the gathered detections."""
     if rules.support and cfg.min_support > 0 and mask.any():
-        _support(pts, mask, feats.h, cfg.min_support)
+        _support(take, mask, feats.h, cfg.min_support)
     random_like = feats.close_fraction >= _RANDOM_CLOSE
     log.info("%s: %.3g %% of the points have a neighbour closer than %.2g x the median "
              "spacing: %s sampling", _FUNC, 100.0 * feats.close_fraction, _CLOSE_RATIO,
              "random-like" if random_like else "mesh-like")
     if random_like and rules.smallest_hole and mask.any():
-        _smallest_hole(pts, mask, feats.h, cfg.min_radius)
+        _smallest_hole(take, mask, len(mask), feats.h, cfg.min_radius)
     if not random_like and rules.border_row and mask.any():
-        mask = _border_row(pts, mask, feats, cfg.row_angle)
+        mask = _border_row(take, mask, gap(), feats.h, cfg.row_angle)
+    return mask
+
+
+def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, gap,
+                   cfg: _HoleConfig, rules: _HoleRules = DEFAULT_RULES):
+    """Threshold the scores, then the point-wise tests and the tests along the
+    border; ``take(rows)`` gives rows' centred positions, ``gap()`` every
+    row's empty angle.  Returns the mask and the threshold."""
+    T = _threshold(score, cfg, rules)
+    mask = score > T
+    _pointwise(mask, feats, bdist, cfg, rules)
+    return _chains(take, mask, feats, gap, cfg, rules), T
+
+
+def _select(pts, ks, feats: HoleFeatures, bdist, codes: CodeLengths, cfg: _HoleConfig,
+            rules: _HoleRules) -> HoleResult:
+    """``select_borders`` over the whole cloud, and the result."""
+    score = codes.score
+    mask, T = select_borders(lambda rows: pts[rows], score, feats, bdist,
+                             lambda: border_gap(pts, feats.near), cfg, rules)
     log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
              len(pts))
     return HoleResult(mask=mask, score=score, threshold=float(T),
@@ -458,5 +496,45 @@ def _detect(points, normals=None, *, rules: _HoleRules = DEFAULT_RULES,
     ablation rows).  ``params`` are its keywords, validated as there."""
     kw = resolve_params(detect_hole_boundaries.params, params, _FUNC)
     kw.pop("preset")  # the ablation rows name their rules and values themselves
+    return _run(points, normals, *split_params(kw), rules)
+
+
+def split_params(kw: dict) -> tuple[_HoleConfig, ScoreConfig]:
+    """The validated keywords of ``detect_hole_boundaries`` (``preset`` left
+    out) as its own configuration and the shared stage's."""
+    kw = dict(kw)
     own = {f.name: kw.pop(f.name) for f in fields(_HoleConfig)}
-    return _run(points, normals, _HoleConfig(**own), ScoreConfig(**kw), rules)
+    return _HoleConfig(**own), ScoreConfig(**kw)
+
+
+def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
+              params: dict) -> dict:
+    """One tile of a tiled run (``pcprep.meshlab_bridge.tiles``), default rules:
+    the point-wise part of the detector for the core rows of ``points`` (every
+    point of the cloud in the box ``[lo, hi]``), with the cloud-wide h.
+
+    Returns the core rows' oriented features (7.5)-(7.7), the inputs of the
+    point-wise tests (shift, border distance, flatness, extent), the empty
+    angle of the border-row test and the nearest-neighbour distance; or
+    ``{"exact": False}`` when a core row's neighbourhood may reach beyond
+    the box.  Scores, threshold and the chain tests are cloud-wide and run
+    on the gathered rows.
+    """
+    from .neighbors import tile_exact
+
+    x = points - centre
+    _, score_cfg = split_params(params)
+    rules = DEFAULT_RULES
+    if len(x) < min(score_cfg.k_max + 1, n_total):
+        return {"exact": False}
+    tree = build_tree(x)
+    ks = scale_sizes(score_cfg.k_min, score_cfg.k_max, score_cfg.n_scales)
+    feats = hole_features(x, ks, h=h, tree=tree, tangential=rules.tangential_shift)
+    if not tile_exact(x[core], None, feats.reach[core], lo - centre, hi - centre, 0).all():
+        return {"exact": False}
+    F = feats.features[core]
+    bdist = _rim_distance(F, ks) if rules.rim_distance else None
+    return {"exact": True, "features": _orient(F), "extent": feats.extent[core],
+            "variation": feats.variation[core], "shift_mean": feats.shift_mean[core],
+            "border_distance": bdist, "gap": border_gap(x, feats.near[core]),
+            "nearest": feats.nearest[core]}

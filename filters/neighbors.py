@@ -87,19 +87,21 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
 ISOLATED_FACTOR = 10.0
 
 
-def spacing_from_rows(row_mean: np.ndarray, plain: float | None = None) -> float:
+def spacing_from_rows(row_mean: np.ndarray) -> float:
     """h from every point's mean distance to its ``SPACING_K`` nearest neighbours.
 
     h is the mean of ``row_mean`` over the points that are not isolated
     (``row_mean <= ISOLATED_FACTOR * median``): a trimmed mean, so that one far
     outlier cannot move the unit of every length (with a point 1e9 away from a
     3000-point cube the plain mean is 13,000 times too large).  When no point is
-    isolated this is the plain mean, ``plain`` if the caller summed it already.
+    isolated this is the plain mean of ``row_mean``, summed in row order, so
+    that a tiled run, which gathers the same row means, gets the same h to the
+    last bit.
     """
     row_mean = np.asarray(row_mean, dtype=np.float64)
     iso = isolated(row_mean)
     if not iso.any():
-        return float(row_mean.mean()) if plain is None else float(plain)
+        return float(row_mean.mean())
     return float(row_mean[~iso].mean())
 
 
@@ -122,7 +124,7 @@ def average_spacing(points: np.ndarray, k: int = SPACING_K, *, tree: cKDTree | N
             f"average_spacing: needs at least {k + 1} points, got {len(points)}"
         )
     d, _ = knn(points, k, tree=tree, include_self=False)
-    h = spacing_from_rows(d.mean(axis=1), float(d.mean()))
+    h = spacing_from_rows(d.mean(axis=1))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("average_spacing: every point coincides with its neighbours (h = 0)")
     return h

@@ -154,7 +154,6 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     idx = np.zeros((n, k), dtype=np.int32)
     dist = np.zeros((n, k), dtype=np.float32)
     kth = np.zeros(n)
-    total = 0.0
     rows = np.zeros(n)
     for s in range(0, n, 4 * CHUNK):
         e = min(n, s + 4 * CHUNK)
@@ -163,13 +162,12 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
         idx[s:e] = j
         dist[s:e] = d
         kth[s:e] = d[:, -1]
-        total += float(d[:, 1:SPACING_K + 1].sum())
         rows[s:e] = d[:, 1:SPACING_K + 1].mean(axis=1)
     if tile is not None:
         h = tile[0]
         r = np.float32(radius_h * h * (1.0 + 1e-6))
         return _Hood(idx, np.maximum((dist <= r).sum(axis=1), 1)), h, kth
-    h = spacing_from_rows(rows, total / (n * SPACING_K))
+    h = spacing_from_rows(rows)
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("saliency_sparse_mdl: every point coincides with its "
                               "neighbours (h = 0)")

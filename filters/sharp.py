@@ -24,8 +24,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._crease import (crease_distance, localisation_k, noise_level, normal_spread,
-                      plane_k, two_plane_distance)
+from ._crease import (SPREAD_K, crease_distance, localisation_k, noise_level,
+                      normal_spread, plane_k, two_plane_distance)
 from ._params import Param, preset_param, resolve_params, validate_params
 from ._validation import PointCloudError
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
@@ -122,6 +122,12 @@ class SharpFeatures:
         Mean Pd/h over the larger half of the scales, the ridge strength's
         factor.  Both are kept apart from ``features``, which the detector
         standardises in place to stay within one copy of the feature matrix.
+    reach : (n,) float
+        Distance to the largest scale's last neighbour: every feature of the
+        row reads only points within it (a tiled run checks its halo with it).
+    nearest : (n,) float
+        Distance to the nearest neighbour (``nn_cv`` is its coefficient of
+        variation).
     """
 
     features: np.ndarray
@@ -130,6 +136,8 @@ class SharpFeatures:
     nn_cv: float
     noise_column: np.ndarray
     ridge_pd: np.ndarray
+    reach: np.ndarray
+    nearest: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -195,15 +203,15 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     out = np.empty((n, 4 * len(ks)))  # noqa: NPY-empty -- every row written below
     normals = np.empty((n, 3))  # noqa: NPY-empty -- every row written below
     nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
+    reach = np.empty(n)  # noqa: NPY-empty -- every entry written below
     rows = np.empty(n) if own_h else None  # noqa: NPY-empty -- every entry written below
     j_nrm = int(np.argmin(np.abs(ks - _NORMAL_K)))
-    hsum = 0.0
     for m in scale_moments(points, ks, tree=tree, weighted=weighted):
         s, e = m.start, m.stop
         if own_h:
-            hsum += float(m.dist[:, 1:SPACING_K + 1].sum())
             rows[s:e] = m.dist[:, 1:SPACING_K + 1].mean(axis=1)
         nn1[s:e] = m.dist[:, 1]
+        reach[s:e] = m.dist[:, -1]
         lam = m.eigenvalues
         l0, l2s = lam[..., 0], np.maximum(lam[..., 2], 1e-300)
         shift_n = np.einsum("csd,csd->cs", m.mean, m.normal)   # (p̄ − p_i)·n
@@ -212,20 +220,25 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
         out[s:e] = f.reshape(e - s, -1)
         normals[s:e] = m.normal[:, j_nrm]
     if own_h:
-        h = spacing_from_rows(rows, hsum / (n * SPACING_K))
+        h = spacing_from_rows(rows)
         if not np.isfinite(h) or h <= 0.0:
             raise PointCloudError(
                 "average_spacing: every point coincides with its neighbours (h = 0)")
     out[:, 0::4] /= h * h                                       # λ0 in h²
     out[:, 3::4] /= h                                           # Pd in h
-    m1 = float(nn1.mean())
-    cv = float(nn1.std() / m1) if m1 > 0 else 0.0
-    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=cv,
+    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=variation(nn1),
                          noise_column=out[:, 0].copy(),
-                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1))
+                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1), reach=reach,
+                         nearest=nn1)
 
 
-def _threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
+def variation(nearest: np.ndarray) -> float:
+    """Coefficient of variation of the nearest-neighbour distances (0 if all are 0)."""
+    m1 = float(nearest.mean())
+    return float(nearest.std() / m1) if m1 > 0 else 0.0
+
+
+def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
     """T = β·max f (7.10), or a fraction of Otsu's split of the score winsorised
     at its 95th percentile (see docs/decisions/features.md, sections
     "Sharp threshold: winsorised Otsu" and "Threshold below Otsu's split")."""
@@ -238,23 +251,16 @@ def _threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> floa
     return T * (_OTSU_SCALE_GATED if gated else 1.0)
 
 
-def _crease_limits(pts, mask, ridge, feats: SharpFeatures, cfg: _SharpConfig,
-                   rules: _SharpRules, tree) -> tuple[np.ndarray, np.ndarray]:
+def _crease_limits(pts, mask, ridge, normals, *, h: float, sigma: float, regular: bool,
+                   cfg: _SharpConfig, rules: _SharpRules, tree) -> tuple[np.ndarray, np.ndarray]:
     """Each detected point's distance to its crease line and the width it must
     meet (two-plane model where it fits, ridge line elsewhere; ``row_width``
     on a regular sampling), both in h."""
-    h = feats.h
-    sigma = noise_level(feats.noise_column)
-    k_loc = localisation_k(sigma)
-    log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d", _FUNC, sigma, k_loc)
-    cdist = crease_distance(pts, mask, ridge, h=h, k=k_loc, tree=tree)
-    regular = rules.row_by_sampling and feats.nn_cv < _REGULAR_CV
-    log.info("%s: nearest-neighbour CV %.3g: %s sampling", _FUNC, feats.nn_cv,
-             "regular" if regular else "irregular")
+    cdist = crease_distance(pts, mask, ridge, h=h, k=localisation_k(sigma), tree=tree)
     limit = np.full(len(pts), float(cfg.row_width if regular else cfg.crease_width))
     if rules.two_plane:
         k_pl = plane_k(sigma)
-        pdist, prms = two_plane_distance(pts, mask, feats.normals, h=h, k=k_pl, tree=tree)
+        pdist, prms = two_plane_distance(pts, mask, normals, h=h, k=k_pl, tree=tree)
         planar = np.isfinite(pdist) & (prms <= _PLANE_RMS0 + _PLANE_RMS_GAIN * sigma)
         log.info("%s: two-plane crease model (k=%d) fits %d of %d detected points",
                  _FUNC, k_pl, int(planar.sum()), int(mask.sum()))
@@ -263,27 +269,63 @@ def _crease_limits(pts, mask, ridge, feats: SharpFeatures, cfg: _SharpConfig,
     return cdist, limit
 
 
-def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _SharpConfig,
-            rules: _SharpRules) -> SharpResult:
-    """Threshold (7.10)-(7.11), then the crease-angle gate and the localisation."""
-    score = codes.score
-    T = _threshold(score, cfg, rules)
-    mask = score > T                                            # (7.11)
+def local_k(sigma: float, cfg: _SharpConfig, rules: _SharpRules) -> int:
+    """The largest neighbourhood the steps after the threshold read (a tiled
+    run's halo must hold it around every detected core point)."""
+    k = 1
+    if rules.angle_gate and cfg.min_angle > 0:
+        k = max(k, SPREAD_K)
+    if rules.localise:
+        k = max(k, localisation_k(sigma), plane_k(sigma) if rules.two_plane else 1)
+    return k
+
+
+def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float, regular: bool,
+              cfg: _SharpConfig, rules: _SharpRules):
+    """The crease-angle gate and the localisation of the thresholded ``mask``
+    (changed in place).  Every test reads one detected point's neighbourhood
+    only, given the cloud-wide noise level ``sigma`` and sampling type
+    ``regular``.  Returns ``spread, cdist, limit`` (None for a step not run)."""
     spread = cdist = limit = None
     if rules.angle_gate and cfg.min_angle > 0 and mask.any():
-        spread = normal_spread(pts, mask, feats.normals, tree=tree)
+        spread = normal_spread(pts, mask, normals, tree=tree)
         n_det = int(mask.sum())
         mask &= spread >= cfg.min_angle
         log.info("%s: crease-angle gate (%.3g deg) keeps %d of %d detected points",
                  _FUNC, cfg.min_angle, int(mask.sum()), n_det)
     if rules.localise and mask.any():
-        # ridge strength: code length × mean Pd (h) over the larger half of the scales
-        ridge = score * feats.ridge_pd
-        cdist, limit = _crease_limits(pts, mask, ridge, feats, cfg, rules, tree)
+        cdist, limit = _crease_limits(pts, mask, ridge, normals, h=h, sigma=sigma,
+                                      regular=regular, cfg=cfg, rules=rules, tree=tree)
         n_det = int(mask.sum())
         mask &= cdist <= limit
         log.info("%s: localisation keeps %d of %d detected points", _FUNC,
                  int(mask.sum()), n_det)
+    return spread, cdist, limit
+
+
+def cloud_state(noise_column: np.ndarray, nn_cv: float, rules: _SharpRules):
+    """The two cloud-wide inputs of the localisation: the noise level σ̂ in h
+    (``noise_level``) and whether the sampling is regular (nearest-neighbour
+    CV below 0.35)."""
+    sigma = noise_level(noise_column)
+    regular = rules.row_by_sampling and nn_cv < _REGULAR_CV
+    log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d; nearest-neighbour CV "
+             "%.3g: %s sampling", _FUNC, sigma, localisation_k(sigma), nn_cv,
+             "regular" if regular else "irregular")
+    return sigma, regular
+
+
+def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _SharpConfig,
+            rules: _SharpRules) -> SharpResult:
+    """Threshold (7.10)-(7.11), then the crease-angle gate and the localisation."""
+    score = codes.score
+    T = threshold(score, cfg, rules)
+    mask = score > T                                            # (7.11)
+    sigma, regular = cloud_state(feats.noise_column, feats.nn_cv, rules)
+    # ridge strength: code length × mean Pd (h) over the larger half of the scales
+    spread, cdist, limit = _localise(pts, tree, mask, feats.normals, score * feats.ridge_pd,
+                                     h=feats.h, sigma=sigma, regular=regular, cfg=cfg,
+                                     rules=rules)
     log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
              len(pts))
     return SharpResult(mask=mask, score=score, threshold=float(T),
@@ -407,11 +449,64 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
                 THESIS_RULES if preset == "thesis" else DEFAULT_RULES)
 
 
+def split_params(kw: dict) -> tuple[_SharpConfig, ScoreConfig]:
+    """The validated keywords of ``detect_sharp_features`` (``preset`` left out)
+    as its own configuration and the shared stage's."""
+    kw = dict(kw)
+    own = {f.name: kw.pop(f.name) for f in fields(_SharpConfig)}
+    return _SharpConfig(**own), ScoreConfig(**kw)
+
+
 def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
             **params) -> SharpResult:
     """``detect_sharp_features`` with the steps of ``rules`` (the benchmark's
     ablation rows).  ``params`` are its keywords, validated as there."""
     kw = resolve_params(detect_sharp_features.params, params, _FUNC)
     kw.pop("preset")  # the ablation rows name their rules and values themselves
-    own = {f.name: kw.pop(f.name) for f in fields(_SharpConfig)}
-    return _run(points, normals, _SharpConfig(**own), ScoreConfig(**kw), rules)
+    return _run(points, normals, *split_params(kw), rules)
+
+
+def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: int,
+               params: dict, mask=None, normals=None, ridge=None, sigma: float = 0.0,
+               regular: bool = False) -> dict:
+    """One tile of a tiled run (``pcprep.meshlab_bridge.tiles``), default rules.
+
+    ``points`` are every point of the cloud in the box ``[lo, hi]`` (its core
+    rows ``core``); ``params`` the validated keywords of
+    ``detect_sharp_features``.  Stage ``"features"`` returns the core rows'
+    features (7.1)-(7.4) with the given cloud-wide h, their PCA normals, ridge
+    factor and nearest-neighbour distance; stage ``"gates"`` runs the
+    crease-angle gate and the localisation on the core rows of the
+    thresholded ``mask`` (``normals``, ``ridge`` given for every row; σ̂ and
+    the sampling type are cloud-wide) and returns the final mask of the core
+    rows.  A result is ``{"exact": False}`` when a core row's neighbourhood
+    may reach beyond the box, which makes the tiler widen the halo.
+    """
+    from .neighbors import build_tree, tile_exact
+
+    x = points - centre
+    box = (lo - centre, hi - centre)
+    cfg, score_cfg = split_params(params)
+    rules = DEFAULT_RULES
+    if stage == "features":
+        if len(x) < min(score_cfg.k_max + 1, n_total):
+            return {"exact": False}
+        tree = build_tree(x)
+        ks = scale_sizes(score_cfg.k_min, score_cfg.k_max, score_cfg.n_scales)
+        feats = sharp_features(x, ks, h=h, tree=tree, weighted=not rules.uniform_pca)
+        if not tile_exact(x[core], None, feats.reach[core], *box, 0).all():
+            return {"exact": False}
+        return {"exact": True, "features": feats.features[core], "normals": feats.normals[core],
+                "ridge_pd": feats.ridge_pd[core], "nearest": feats.nearest[core]}
+    sel = core & mask
+    k = local_k(sigma, cfg, rules)
+    if sel.any():
+        if len(x) < min(k, n_total):
+            return {"exact": False}
+        tree = build_tree(x)
+        d, _ = tree.query(x[sel], k=[min(k, len(x))], workers=1)
+        if not tile_exact(x[sel], None, d[:, -1], *box, 0).all():
+            return {"exact": False}
+        _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, regular=regular, cfg=cfg,
+                  rules=rules)
+    return {"exact": True, "mask": sel[core]}

@@ -99,8 +99,7 @@ def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=
     else:
         dist, idx = nn[0][:, :k], nn[1][:, :k]  # float32 lists stay float32
     # h: the mean distance to the 6 nearest neighbours
-    h = spacing_from_rows(dist[:, 1:7].mean(axis=1, dtype=np.float64),
-                          float(dist[:, 1:7].mean(dtype=np.float64)))
+    h = spacing_from_rows(dist[:, 1:7].mean(axis=1, dtype=np.float64))
     diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     if not np.isfinite(h) or h <= 1e-9 * diag:
         raise PointCloudError("simplify_sdbs: every point coincides with its "

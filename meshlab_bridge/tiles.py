@@ -273,6 +273,20 @@ def tile_target(tiles, client, n: int) -> int:
     return t
 
 
+def _submit(client, fn, *args, **kwargs):
+    """``client.submit`` of a task that carries its input arrays.  They travel
+    inside the task, not scattered beforehand: a scattered array dies with its
+    worker, while a task that holds its data can be run again elsewhere, which
+    is how a lost worker costs nothing.  Dask's warning about large task
+    graphs is therefore expected here and not shown."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sending large graph",
+                                category=UserWarning)
+        return client.submit(fn, *args, pure=False, **kwargs)
+
+
 class _Runner:
     """One pass over the tiles: submit, collect, re-run a tile whose halo was
     too narrow with a wider one, and check that every core row came once."""
@@ -305,8 +319,7 @@ class _Runner:
                     c = queue.pop(0)
                     rows, pts, core, lo, hi = extended(self.src, self.index, c, width[c])
                     more = {} if per_tile is None else per_tile(rows, core)
-                    fut = self.client.submit(fn, pts, lo, hi, core, pure=False, **args,
-                                             **more)
+                    fut = _submit(self.client, fn, pts, lo, hi, core, **args, **more)
                     meta[fut.key] = (c, rows, core)
                     futures.add(fut)
             submit()
@@ -686,4 +699,162 @@ def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
                         "residual": resid, "normals": nrm}, h, {"passes": 3})
 
 
-_FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency}
+# ---------------------------------------------------------------------------
+# the feature detectors (chapter 7): features by tiles, the score model fitted
+# once on the driver, rows scored in chunks, then the local or chain tests
+
+
+def _knn_reach(k: int) -> float:
+    """First guess of the distance to a point's k-th neighbour, in h (on a
+    sampled surface, where h is the mean 6-NN distance); tiles check it."""
+    return 0.8 * math.sqrt(k)
+
+
+def _feature_store(scratch: str, d: int, n: int) -> np.ndarray:
+    """A (d, n) float64 memory map for every row's features, column by column
+    so that the per-column statistics read contiguous memory."""
+    return np.lib.format.open_memmap(os.path.join(scratch, "features.npy"), mode="w+",
+                                     dtype=np.float64, shape=(d, n))
+
+
+def _score_task(F, model, cfg):
+    from pcprep.filters.multiscale import score_rows
+
+    return score_rows(F, model, cfg, overwrite=True).score
+
+
+def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
+    """The code-length score of every row: the standardisation and the K-SVD
+    dictionary fitted once on the driver from the stored features (the exact
+    state of a one-piece run: medians and the content-ordered training rows of
+    every row), broadcast, and the rows coded in chunks on the workers (a row's
+    code depends on the row and the model only)."""
+    import time
+
+    from dask.distributed import as_completed
+
+    from pcprep.filters.multiscale import fit_score_model
+
+    t0 = time.perf_counter()
+    F = Fc.T                                   # (n, d), columns contiguous
+    n = len(F)
+    with progress.step("score model", 1) as advance:
+        model = fit_score_model(F, cfg)
+        advance()
+    t1 = time.perf_counter()
+    client = runner.client
+    [shared] = client.scatter([model], broadcast=True)
+    score = np.empty(n)  # noqa: NPY-empty -- every chunk written below
+    starts = list(range(0, n, CHUNK // 4))
+    limit = IN_FLIGHT * max(1, len(client.scheduler_info()["workers"]))
+    futures = as_completed()
+    meta = {}
+    with progress.step("score rows", len(starts)) as advance:
+        def submit():
+            while starts and futures.count() < limit:
+                s0 = starts.pop(0)
+                fut = _submit(client, _score_task, np.ascontiguousarray(F[s0:s0 + CHUNK // 4]),
+                              shared, cfg)
+                meta[fut.key] = s0
+                futures.add(fut)
+        submit()
+        for fut in futures:
+            s0 = meta.pop(fut.key)
+            part = fut.result()
+            score[s0:s0 + len(part)] = part
+            del fut
+            advance()
+            submit()
+    runner.times["score model"] = t1 - t0
+    runner.times["score rows"] = time.perf_counter() - t1
+    return score
+
+
+def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
+    """Tiled sharp features: the features of every row by tiles (a halo of the
+    largest scale), the score as in ``_scores``, the threshold from every
+    score, the noise level and sampling type from every row, then the gate and
+    the localisation by tiles (a halo of their largest neighbourhood)."""
+    from pcprep.filters import sharp
+
+    cfg, stage = sharp.split_params(prm)
+    n = src.n
+    Fc = _feature_store(scratch, 4 * stage.n_scales, n)
+    nrm = np.zeros((n, 3))
+    ridge_pd = np.zeros(n)
+    nearest = np.zeros(n)
+
+    def collect(rows, core, res):
+        r = rows[core]
+        Fc[:, r] = res["features"].T
+        nrm[r] = res["normals"]
+        ridge_pd[r] = res["ridge_pd"]
+        nearest[r] = res["nearest"]
+
+    base = dict(centre=src.centre, h=h, n_total=n, params=prm)
+    runner.run("features", sharp.sharp_tile, _knn_reach(stage.k_max) * h,
+               dict(base, stage="features"), collect)
+    sigma, regular = sharp.cloud_state(np.asarray(Fc[0]), sharp.variation(nearest),
+                                       sharp.DEFAULT_RULES)
+    score = _scores(runner, Fc, stage)
+    T = sharp.threshold(score, cfg, sharp.DEFAULT_RULES)
+    mask = score > T                                              # (7.11)
+    ridge = score * ridge_pd
+    del ridge_pd
+    final = np.zeros(n, dtype=bool)
+
+    def collect_gates(rows, core, res):
+        final[rows[core]] = res["mask"]
+
+    k = sharp.local_k(sigma, cfg, sharp.DEFAULT_RULES)
+    runner.run("feature gates", sharp.sharp_tile, _knn_reach(k) * h,
+               dict(base, stage="gates", sigma=sigma, regular=regular), collect_gates,
+               lambda rows, core: {"mask": mask[rows], "normals": nrm[rows],
+                                   "ridge": ridge[rows]})
+    log.info("features: threshold %.4g; %d of %d points after the gate and the "
+             "localisation", T, int(final.sum()), n)
+    return TiledResult({"mask": final, "score": score, "quality": final.astype(np.float64)},
+                       h, {"threshold": T, "passes": 5, "noise": sigma, "regular": regular})
+
+
+def _holes(runner, src, normals, h, prm, scratch) -> TiledResult:
+    """Tiled hole boundaries: the features and the point-wise quantities of
+    every row by tiles, the score as in ``_scores``, the threshold and the
+    point-wise tests from every row; the border chains (support, smallest
+    hole, border row) are cloud-wide, so they run on the driver over the
+    detected points and the border-row candidates only (their positions read
+    from the memory map), which are a small part of the cloud."""
+    from pcprep.filters import holes
+
+    cfg, stage = holes.split_params(prm)
+    rules = holes.DEFAULT_RULES
+    n = src.n
+    Fc = _feature_store(scratch, 3 * stage.n_scales, n)
+    cols = {c: np.zeros(n) for c in ("extent", "variation", "shift_mean", "border_distance",
+                                     "gap", "nearest")}
+
+    def collect(rows, core, res):
+        r = rows[core]
+        Fc[:, r] = res["features"].T
+        for c, v in cols.items():
+            if res[c] is not None:
+                v[r] = res[c]
+
+    runner.run("holes", holes.hole_tile, _knn_reach(stage.k_max) * h,
+               dict(centre=src.centre, h=h, n_total=n, params=prm), collect)
+    score = _scores(runner, Fc, stage)
+    feats = holes.HoleFeatures(features=None, h=h, extent=cols["extent"],
+                               variation=cols["variation"], near=None,
+                               close_fraction=holes.close_fraction(cols["nearest"]),
+                               shift_mean=cols["shift_mean"], reach=None,
+                               nearest=cols["nearest"])
+    centre = src.centre
+    mask, T = holes.select_borders(lambda rows: np.asarray(src.xyz[rows]) - centre, score,
+                                   feats, cols["border_distance"] if rules.rim_distance
+                                   else None, lambda: cols["gap"], cfg, rules)
+    return TiledResult({"mask": mask, "score": score, "quality": mask.astype(np.float64)},
+                       h, {"threshold": T, "passes": 4})
+
+
+_FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency,
+             "features": _sharp, "holes": _holes}

@@ -188,3 +188,63 @@ def test_cli_refuses_bad_tiles(capsys):
     with pytest.raises(SystemExit):
         main(["denoise", "a.ply", "b.ply", "--tiles", "0"])
     assert "positive count" in capsys.readouterr().err
+
+
+def _jittered_grid_with_hole(side=160, seed=6):
+    # mesh-like sampling (a jittered grid: no exact neighbour ties) with a round hole
+    g = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.arange(side), np.arange(side))
+    p = np.c_[u.ravel(), v.ravel()].astype(np.float64)
+    p += 0.05 * g.normal(size=p.shape)
+    p = p[np.linalg.norm(p - 0.4 * side, axis=1) > 0.12 * side]
+    z = 0.002 * side * np.sin(p[:, 0] / 9.0)
+    return np.c_[p, z] * 0.01 + [5e5, 4e6, 30.0]
+
+
+def test_features_identical_on_200k_points(client):
+    from pcprep.baselines.datasets import make_shape
+    from pcprep.filters.sharp import detect_sharp_features
+
+    s = make_shape("fandisk", n=200_000, seed=2)
+    pts = s.points + [4e5, -3e6, 50.0]
+    ref = detect_sharp_features(pts)
+    res = tiles.run_tiled("features", pts, client=client, tiles=20_000)
+    assert res.stats["tiles"] >= 8
+    assert ref.mask.sum() > 1000
+    assert np.array_equal(res.fields["mask"], ref.mask)
+    assert np.array_equal(res.fields["score"], ref.score)
+    assert res.h == ref.h
+
+
+@pytest.mark.parametrize("cloud", ["random", "mesh-like"])
+def test_holes_identical(client, cloud):
+    from pcprep.baselines.datasets import make_shape
+    from pcprep.filters.holes import detect_hole_boundaries
+
+    # random-like sampling runs the smallest-hole test, mesh-like the border row
+    pts = (make_shape("disc", n=30_000, seed=3).points if cloud == "random"
+           else _jittered_grid_with_hole())
+    ref = detect_hole_boundaries(pts)
+    res = tiles.run_tiled("holes", pts, client=client, tiles=3000)
+    assert res.stats["tiles"] >= 6
+    assert ref.mask.sum() > 200
+    assert np.array_equal(res.fields["mask"], ref.mask)
+    assert np.array_equal(res.fields["score"], ref.score)
+
+
+def test_cli_tiled_features_ply(tmp_path):
+    from pcprep.baselines.datasets import make_shape
+    from pcprep.meshlab_bridge.cli import main
+    from pcprep.meshlab_bridge.formats import read_cloud, write_cloud
+    from pcprep.meshlab_bridge.cloud import Cloud
+
+    s = make_shape("cube", n=20_000, seed=4)
+    src = tmp_path / "cube.ply"
+    write_cloud(Cloud(points=s.points), src)
+    assert main(["features", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
+    assert main(["features", str(src), str(tmp_path / "tiled.ply"), "--tiles", "2500",
+                 "--workers", "2", "--quiet"]) == 0
+    a, b = read_cloud(tmp_path / "one.ply"), read_cloud(tmp_path / "tiled.ply")
+    assert a.quality.sum() > 500
+    assert np.array_equal(a.quality, b.quality)
+    assert np.array_equal(a.points, b.points)
