@@ -27,7 +27,9 @@ log = logging.getLogger("pcprep")
 #: point counts of the full run and of --quick
 SIZES = (1_000_000,)
 QUICK_SIZES = (100_000,)
-FILTERS = ("outliers", "denoise", "saliency", "features", "holes")
+FILTERS = ("outliers", "denoise", "saliency", "features", "holes", "simplify")
+#: parameters a filter needs beyond its defaults
+PARAMS = {"simplify": {"ratio": 0.1}}
 #: core points per tile
 TILE = 200_000
 QUICK_TILE = 25_000
@@ -78,6 +80,18 @@ def _knn16_seconds(path: str) -> float:
     return time.perf_counter() - t
 
 
+def _one_piece_seconds(path: str, name: str) -> float:
+    """Wall time of the filter over the whole cloud in this process (no Dask)."""
+    from pcprep.meshlab_bridge import registry, tiles
+    from pcprep.meshlab_bridge.formats import stream
+
+    spec = tiles._spec(registry, name)
+    pts = np.concatenate([b for _, b in stream.position_chunks(path)])
+    t = time.perf_counter()
+    spec.func(pts, **PARAMS.get(name, {}))
+    return time.perf_counter() - t
+
+
 def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
     from dask.distributed import Client, LocalCluster
 
@@ -96,7 +110,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
             t_in = time.perf_counter() - t0
             t1 = time.perf_counter()
             res = tiles.run_tiled(name, source=src, client=client, tiles=tile,
-                                  scratch=scratch)
+                                  scratch=scratch, params=PARAMS.get(name))
             t_run = time.perf_counter() - t1
             t2 = time.perf_counter()
             stream.write_streamed(spec, path, dst, res.fields)
@@ -127,13 +141,15 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     sizes = QUICK_SIZES if quick else SIZES
     tile = QUICK_TILE if quick else TILE
     work = tempfile.mkdtemp(prefix="pcprep-scale-")
-    rows, knn = [], {}
+    rows, knn, whole = [], {}, {}
     try:
         for n in sizes:
             path = os.path.join(work, f"terrain_{n}.laz")
             _terrain_laz(path, n, seed)
             knn[n] = _knn16_seconds(path)
             for name in FILTERS:
+                log.warning("scale: %s, %d points, one piece", name, n)
+                whole[(name, n)] = _one_piece_seconds(path, name)
                 for workers in (1, 2):
                     log.warning("scale: %s, %d points, %d worker(s)", name, n, workers)
                     rows.append(_one(path, os.path.join(work, "out.laz"), name, workers,
@@ -150,9 +166,12 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
             summary.append({"filter": name, "n": n, "speedup_2": one["wall_s"] / two["wall_s"],
                             "serial_fraction": one["serial_s"] / one["wall_s"],
                             "x_knn16": one["wall_s"] / knn[n],
+                            "one_piece_s": whole[(name, n)],
+                            "one_piece_x_knn16": whole[(name, n)] / knn[n],
                             "proj_1e9_32_h": _project(one, 32) / 3600,
                             "proj_1e9_256_h": _project(one, 256) / 3600})
     out = {"rows": rows, "summary": summary, "knn16_s": knn, "tile": tile,
+           "params": PARAMS,
            "cpus": os.cpu_count()}
     with open(os.path.join(out_dir, "scale.json"), "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1, default=float)
@@ -176,11 +195,13 @@ def _markdown(out: dict) -> str:
                      f"{r['wall_s']:.1f} | {r['s_per_million']:.1f} | {r['serial_s']:.1f} | "
                      f"{', '.join(f'{p:.0f}' for p in r['peak_worker_rss_mb'])} | "
                      f"{r['halo_max_h']:.0f} |")
-    lines += ["", "| filter | points | speed-up 1→2 workers | serial fraction | "
+    lines += ["", "| filter | points | one piece s | one piece × one 16-NN pass | "
+              "speed-up 1→2 workers | serial fraction | "
               "× one 16-NN pass (1 worker, tiled) | 10⁹ pts on 32 workers (h) | "
-              "on 256 workers (h) |", "|---|---|---|---|---|---|---|"]
+              "on 256 workers (h) |", "|---|---|---|---|---|---|---|---|---|"]
     for s in out["summary"]:
-        lines.append(f"| {s['filter']} | {s['n']:,} | {s['speedup_2']:.2f} | "
+        lines.append(f"| {s['filter']} | {s['n']:,} | {s['one_piece_s']:.1f} | "
+                     f"{s['one_piece_x_knn16']:.1f} | {s['speedup_2']:.2f} | "
                      f"{s['serial_fraction']:.3f} | {s['x_knn16']:.1f} | "
                      f"{s['proj_1e9_32_h']:.2f} | {s['proj_1e9_256_h']:.2f} |")
     lines += ["", "Projection (Amdahl): T(P) = S·(10⁹/n) + (W − S)·(10⁹/n)/P, with S the "

@@ -104,28 +104,54 @@ def sdbs_features(points: np.ndarray, normals, k: int, feature_scale: str, tree=
     if not np.isfinite(h) or h <= 1e-9 * diag:
         raise PointCloudError("simplify_sdbs: every point coincides with its "
                               "neighbours (h = 0)")
-    # (6.1) with exp(-d²/s²), s = the point's mean neighbour distance (the
-    # thesis' exp(-d²/k_i²) mixes a length with a count)
+    n, sigma = local_geometry(P, normals, dist, idx, h)
+    return scale_features(n, sigma, P, feature_scale), h, dist, idx
+
+
+def local_geometry(P: np.ndarray, normals, dist: np.ndarray, idx: np.ndarray, h: float):
+    """Normal and surface variation of every row from its k-NN lists (6.1)-(6.3).
+
+    The weighted PCA (6.1) uses exp(-d²/s²), s the point's mean neighbour
+    distance (the thesis' exp(-d²/k_i²) mixes a length with a count).  The
+    normal takes the sign of the given ``normals``, else it points away from
+    the origin of ``P`` (the features need a sign).  Row-local: a tile of a
+    tiled run computes it for its rows.
+    """
     s = np.maximum(dist[:, 1:].mean(axis=1), 1e-30 * h)
     w = np.exp(-(dist / s[:, None]) ** 2)
     pca = weighted_pca(P, idx, w)
     n = pca.normals.copy()
     if normals is not None:
         sgn = np.sign(np.einsum("ij,ij->i", n, normals))
-    else:  # orient away from the centroid (the features need a sign)
+    else:
         sgn = np.sign(np.einsum("ij,ij->i", n, P))
     sgn[sgn == 0] = 1.0
     n *= sgn[:, None]
-    sigma = pca.surface_variation
+    return n, pca.surface_variation
+
+
+def feature_scales(sigma: np.ndarray, P: np.ndarray, feature_scale: str) -> tuple:
+    """The cloud-wide divisors of the σ and position columns: their RMS values
+    ("balanced": each block weighs alike in the code) or 1 and the bounding-box
+    diagonal (the thesis' unscaled features).  ``P`` may be a memory map: it
+    is read in chunks."""
     if feature_scale == "balanced":
         rms_s = float(np.sqrt(np.mean(sigma ** 2)))
-        sig = sigma / rms_s if rms_s > 0 else sigma
-        pos = P / float(np.sqrt(np.mean(np.einsum("ij,ij->i", P, P))))
-    else:
-        diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
-        sig, pos = sigma, P / diag
-    F = np.column_stack([n, sig, pos])
-    return F, h, dist, idx
+        sq = np.empty(len(P))  # noqa: NPY-empty -- every chunk written below
+        for s0 in range(0, len(P), CHUNK):
+            sq[s0:s0 + CHUNK] = np.einsum("ij,ij->i", P[s0:s0 + CHUNK], P[s0:s0 + CHUNK])
+        return (rms_s if rms_s > 0 else 1.0), float(np.sqrt(np.mean(sq)))
+    lo = np.min([P[s0:s0 + CHUNK].min(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
+    hi = np.max([P[s0:s0 + CHUNK].max(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
+    return 1.0, float(np.linalg.norm(hi - lo))
+
+
+def scale_features(n: np.ndarray, sigma: np.ndarray, P: np.ndarray, feature_scale: str,
+                   scales: tuple | None = None) -> np.ndarray:
+    """F = (n, σ / s_σ, P / s_p) (§6.3.1) with the divisors of ``feature_scales``
+    (computed from ``sigma`` and ``P`` unless given)."""
+    s_sig, s_pos = feature_scales(sigma, P, feature_scale) if scales is None else scales
+    return np.column_stack([n, sigma / s_sig, P / s_pos])
 
 
 def saliency_scores(F: np.ndarray, *, n_atoms: int, alpha: float, max_iter: int,
@@ -138,12 +164,24 @@ def saliency_scores(F: np.ndarray, *, n_atoms: int, alpha: float, max_iter: int,
                        max_iter=max_iter, max_train=max_train, seed=seed, code_all=False,
                        order="rows")
     log.info("simplify_sdbs: dictionary of %d atoms trained", n_atoms)
-    codes = sparse.lasso_lars(F, kres.dictionary, alpha=alpha)
-    nnz, res = sparse.code_length(codes, F, kres.dictionary)
+    nnz, res = code_rows(F, kres.dictionary, alpha)
+    return normalised_saliency(nnz, res), nnz, res
+
+
+def code_rows(F: np.ndarray, D: np.ndarray, alpha: float):
+    """Lasso code of every row on ``D`` (6.7): its atom count and residual.
+    A row's code depends on the row and ``D`` only."""
+    codes = sparse.lasso_lars(F, D, alpha=alpha)
+    return sparse.code_length(codes, F, D)
+
+
+def normalised_saliency(nnz: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """Sf = f·g (6.10): the atom count and the residual, each divided by its
+    maximum over the cloud."""
     f = nnz / max(int(nnz.max()), 1)
     rmax = float(res.max())
     g = res / rmax if rmax > 0 else np.zeros_like(res)
-    return f * g, nnz, res
+    return f * g
 
 
 # --------------------------------------------------------------------------- greedy
@@ -406,12 +444,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     300
     """
     func = "simplify_sdbs"
-    given = [name for name, v in (("ratio", ratio), ("count", count), ("delta", delta))
-             if v is not None]
-    if len(given) != 1:
-        raise InvalidParameterError(
-            f"{func}: give exactly one of ratio, count, delta "
-            f"(got {', '.join(given) or 'none'})")
+    size_params(ratio, count, delta, func)
     check_seed(seed, func=func)
     P = as_points(points, func=func, min_points=k + 1)
     n = len(P)
@@ -435,12 +468,19 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
                                       seed=seed)
     del F
     inv = 1.0 / np.maximum(score, sf_floor)
-    d0 = delta if target is None else _delta_guess(target, n, inv)
-    log.info("simplify_sdbs: saliency done; first delta %.4g h", d0)
 
     def run(dl):
         return greedy_keep(P, gd, gi, score, dl * unit * inv, tree=tree)
 
+    return removal(run, score, nnz, res, h, n, target, delta, inv)
+
+
+def removal(run, score, nnz, res, h: float, n: int, target, delta, inv) -> SimplifyResult:
+    """The removal (6.11): δ given, or searched until the greedy count is
+    within 1 % of ``target`` and the count then made exact; ``run(δ)`` is the
+    greedy pass (one piece, or by tiles)."""
+    d0 = delta if target is None else _delta_guess(target, n, inv)
+    log.info("simplify_sdbs: saliency done; first delta %.4g h", d0)
     if target is not None and target >= n:
         keep = np.ones(n, dtype=bool)
         d_use, n_greedy = 0.0, n
@@ -457,6 +497,50 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
              d_use)
     return SimplifyResult(keep_idx=keep_idx, score=score, delta=float(d_use), h=h,
                           nnz=nnz, residual=res, n_greedy=n_greedy)
+
+
+def size_params(ratio, count, delta, func: str) -> None:
+    """Exactly one of ratio, count and delta must be given."""
+    given = [name for name, v in (("ratio", ratio), ("count", count), ("delta", delta))
+             if v is not None]
+    if len(given) != 1:
+        raise InvalidParameterError(
+            f"{func}: give exactly one of ratio, count, delta "
+            f"(got {', '.join(given) or 'none'})")
+
+
+def sdbs_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: int, k: int,
+              normals=None, score=None, rho=None) -> dict:
+    """One tile of a tiled run (``pcprep.meshlab_bridge.tiles``).
+
+    ``points`` are every point of the cloud in the box ``[lo, hi]``, ``core``
+    the tile's own rows.  Stage ``"features"``: the normal and surface
+    variation (``local_geometry``, about the cloud-wide ``centre``) and the
+    mean 6-NN distance of the core rows, or ``{"exact": False}`` when a core
+    row's k-NN ball may leave the box.  Stage ``"greedy"``: the greedy removal
+    (6.11) over the tile's rows with the cloud-wide ``score`` and radii
+    ``rho``, and the core rows' keep flags.  The greedy visit order is
+    cloud-wide, so a core row's decision equals the one-piece decision unless
+    a chain of earlier decisions reaches it from beyond the halo (measured in
+    docs/decisions/scale.md).
+    """
+    from .neighbors import tile_exact
+
+    x = points - centre
+    kk = min(n_total, max(k, GRAPH_K))
+    if len(x) < kk:
+        return {"exact": False}
+    tree = build_tree(x)
+    gd, gi = _knn32(x, kk, tree)
+    if stage == "features":
+        reach = gd[core, k - 1].astype(np.float64) * (1.0 + 1e-6)  # float32 distances
+        if not tile_exact(x[core], None, reach, lo - centre, hi - centre, 0).all():
+            return {"exact": False}
+        nrm, sigma = local_geometry(x, normals, gd[:, :k], gi[:, :k], h)
+        return {"exact": True, "normals": nrm[core], "sigma": sigma[core],
+                "rows6": gd[core, 1:7].mean(axis=1, dtype=np.float64)}
+    keep = greedy_keep(x, gd, gi, score, rho, tree=tree)
+    return {"exact": True, "keep": keep[core]}
 
 
 def _target(ratio, count, n: int, func: str) -> int | None:

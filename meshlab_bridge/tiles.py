@@ -583,8 +583,19 @@ def _replay(traces, plan, n: int, tol: float):
         b = sum(t[i][2] for t in traces)
         truth = a > b if kind == "rise" else math.sqrt(a / n) < tol
         if truth != used:
-            return [d[3] for d in traces[0][:i]] + [truth]
+            fixed = [d[3] for d in traces[0][:i]] + [truth]
+            return fixed + _predict(fixed)
     return None
+
+
+def _predict(fixed: list, most: int = 256) -> list:
+    """A guess of the decisions after the verified ones: each later outer
+    iteration's inner loop ends as the last one did (the decisions since the
+    last-but-one "yes", repeated).  A guess only: the replay checks every
+    decision, so a wrong one costs a run and a right one saves one."""
+    ends = [j for j, b in enumerate(fixed) if b]
+    seg = fixed[ends[-2] + 1:] if len(ends) >= 2 else fixed
+    return (seg * (most // len(seg) + 1))[:most]
 
 
 def _halo_sample(rows, core, res, most: int = 4096):
@@ -856,5 +867,137 @@ def _holes(runner, src, normals, h, prm, scratch) -> TiledResult:
                        h, {"threshold": T, "passes": 4})
 
 
+# ---------------------------------------------------------------------------
+# SDBS simplification (chapter 6)
+
+
+def _chunked_mean(xyz: np.ndarray) -> np.ndarray:
+    """The centroid of a memory-mapped cloud, summed chunk by chunk."""
+    tot = np.zeros(3)
+    for s0 in range(0, len(xyz), CHUNK):
+        tot += np.asarray(xyz[s0:s0 + CHUNK]).sum(axis=0)
+    return tot / len(xyz)
+
+
+def _code_task(F, D, alpha):
+    from pcprep.filters.simplify import code_rows
+
+    return code_rows(F, D, alpha)
+
+
+def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
+    """Tiled SDBS: the PCA features of every row by tiles; the feature scales,
+    the K-SVD dictionary (on the seeded row subsample of a one-piece run) and
+    the maxima of (6.10) on the driver; the Lasso codes in row chunks on the
+    workers; then the δ search, each trial a greedy pass by tiles whose halo
+    is three of the largest radii, and the exact count restored on the whole
+    cloud (``simplify.removal``).  The greedy visit order is cloud-wide; a
+    decision can differ from a one-piece run's only where a chain of earlier
+    decisions crosses a halo, which the tests and docs/decisions/scale.md
+    measure."""
+    import time
+
+    from dask.distributed import as_completed
+
+    from pcprep.filters import simplify as sd
+    from pcprep.filters import sparse
+
+    n = src.n
+    sd.size_params(prm["ratio"], prm["count"], prm["delta"], "simplify_sdbs")
+    target = sd._target(prm["ratio"], prm["count"], n, "simplify_sdbs")
+    k = prm["k"]
+    centre = _chunked_mean(src.xyz)
+    nrm = np.zeros((n, 3))
+    sigma = np.zeros(n)
+    rows6 = np.zeros(n)
+
+    def collect(rows, core, res):
+        r = rows[core]
+        nrm[r], sigma[r], rows6[r] = res["normals"], res["sigma"], res["rows6"]
+
+    given = None if normals is None else np.asarray(normals, dtype=np.float64)
+    base = dict(centre=centre, h=h, n_total=n, k=k)
+    runner.run("simplify features", sd.sdbs_tile, _knn_reach(max(k, sd.GRAPH_K)) * h,
+               dict(base, stage="features"), collect,
+               lambda rows, core: {"normals": None if given is None else given[rows]})
+    hs = spacing_from_rows(rows6)          # from the float32 lists, as one piece
+    t0 = time.perf_counter()
+    P = _Centred(src.xyz, centre)
+    scales = sd.feature_scales(sigma, P, prm["feature_scale"])
+    F = np.lib.format.open_memmap(os.path.join(scratch, "sdbs_features.npy"), mode="w+",
+                                  dtype=np.float64, shape=(n, 7))
+    for s0 in range(0, n, CHUNK):
+        F[s0:s0 + CHUNK] = sd.scale_features(nrm[s0:s0 + CHUNK], sigma[s0:s0 + CHUNK],
+                                             P[s0:s0 + CHUNK], prm["feature_scale"], scales)
+    del nrm, sigma
+    with progress.step("simplify dictionary", 1) as advance:
+        D = sparse.ksvd(F, prm["n_atoms"], n_nonzero_coefs=min(3, 7, prm["n_atoms"]),
+                        max_iter=prm["max_iter"], max_train=prm["max_train"],
+                        seed=prm["seed"], code_all=False, order="rows").dictionary
+        advance()
+    runner.times["simplify dictionary"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    nnz = np.zeros(n, dtype=np.int64)
+    res = np.zeros(n)
+    client = runner.client
+    [shared] = client.scatter([D], broadcast=True)
+    starts = list(range(0, n, CHUNK // 4))
+    limit = IN_FLIGHT * max(1, len(client.scheduler_info()["workers"]))
+    futures, meta = as_completed(), {}
+    with progress.step("simplify codes", len(starts)) as advance:
+        def submit():
+            while starts and futures.count() < limit:
+                s0 = starts.pop(0)
+                fut = _submit(client, _code_task, np.array(F[s0:s0 + CHUNK // 4]), shared,
+                              prm["alpha"])
+                meta[fut.key] = s0
+                futures.add(fut)
+        submit()
+        for fut in futures:
+            s0 = meta.pop(fut.key)
+            a, b = fut.result()
+            nnz[s0:s0 + len(a)], res[s0:s0 + len(b)] = a, b
+            del fut
+            advance()
+            submit()
+    runner.times["simplify codes"] = time.perf_counter() - t1
+    score = sd.normalised_saliency(nnz, res)
+    unit = hs * (np.maximum(rows6, 1e-3 * hs) / hs) ** prm["density_adapt"]
+    inv = 1.0 / np.maximum(score, prm["sf_floor"])
+    trials = []
+
+    def run(dl):
+        rho = dl * unit * inv
+        keep = np.zeros(n, dtype=bool)
+
+        def collect_keep(rows, core, res):
+            keep[rows[core]] = res["keep"]
+
+        halo = 3.0 * float(np.quantile(rho, 0.999)) + _knn_reach(sd.GRAPH_K) * hs
+        runner.halo.clear()
+        runner.run("simplify greedy", sd.sdbs_tile, halo, dict(base, stage="greedy"),
+                   collect_keep, lambda rows, core: {"score": score[rows], "rho": rho[rows]})
+        trials.append(dl)
+        return keep
+
+    out = sd.removal(run, score, nnz, res, hs, n, target, prm["delta"], inv)
+    return TiledResult({"keep_idx": out.keep_idx, "score": score}, hs,
+                       {"delta": out.delta, "greedy_passes": len(trials),
+                        "n_greedy": out.n_greedy, "passes": 2 + len(trials)})
+
+
+class _Centred:
+    """Rows of a memory-mapped cloud about ``centre``, read on demand."""
+
+    def __init__(self, xyz, centre):
+        self.xyz, self.centre = xyz, centre
+
+    def __len__(self):
+        return len(self.xyz)
+
+    def __getitem__(self, key):
+        return np.asarray(self.xyz[key]) - self.centre
+
+
 _FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency,
-             "features": _sharp, "holes": _holes}
+             "features": _sharp, "holes": _holes, "simplify": _simplify}

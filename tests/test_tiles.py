@@ -248,3 +248,50 @@ def test_cli_tiled_features_ply(tmp_path):
     assert a.quality.sum() > 500
     assert np.array_equal(a.quality, b.quality)
     assert np.array_equal(a.points, b.points)
+
+
+def test_denoise_plan_replay_finds_the_cloud_decisions():
+    # a hidden sequence of cloud-wide "is the move below tol" answers: the first
+    # inner loop settles at its 7th decision, every later one at its 4th
+    truth = [False] * 6 + [True] + ([False] * 3 + [True]) * 4
+    n, tol = 100, 0.1
+
+    def run(plan):  # one tile holding every row: its sums are the cloud's
+        used = [plan[i] if i < len(plan) else False for i in range(len(truth))]
+        a = [(0.0 if t else 4.0 * tol * tol * n) for t in truth]
+        return [[("move", a[i], 0.0, used[i]) for i in range(len(truth))]]
+
+    def runs_needed(predict):
+        plan, runs = [], 0
+        while True:
+            runs += 1
+            wrong = tiles._replay(run(plan), plan, n, tol)
+            if wrong is None:
+                return plan, runs
+            plan = wrong if predict else wrong[:len(wrong) - len(tiles._predict(wrong))]
+
+    plan, runs = runs_needed(True)
+    assert plan[:len(truth)] == truth
+    assert runs == 3  # the repeated pattern is predicted after the second "yes"
+    plain, runs_plain = runs_needed(False)
+    assert plain[:len(truth)] == truth and runs_plain == 6
+
+
+def test_simplify_exact_count_and_same_error(client):
+    from pcprep.baselines.datasets import make_shape
+    from pcprep.filters.metrics import simplification_error
+    from pcprep.filters.simplify import simplify_sdbs
+
+    pts = make_shape("fandisk", n=60_000, seed=1).points + [4e5, 3e6, 10.0]
+    ref = simplify_sdbs(pts, ratio=0.1)
+    res = tiles.run_tiled("simplify", pts, params={"ratio": 0.1}, client=client,
+                          tiles=8000)
+    got = res.fields["keep_idx"]
+    assert res.stats["tiles"] >= 6
+    assert len(got) == len(ref.keep_idx) == 6000          # the exact requested count
+    a, b = set(ref.keep_idx.tolist()), set(got.tolist())
+    assert len(a & b) / len(a | b) >= 0.97
+    e_ref = simplification_error(pts, pts[ref.keep_idx])
+    e_got = simplification_error(pts, pts[got])
+    assert abs(e_got[0] - e_ref[0]) <= 0.01 * e_ref[0]
+    assert abs(e_got[1] - e_ref[1]) <= 0.01 * e_ref[1]
