@@ -552,8 +552,10 @@ def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
         wrong = _replay(traces, plan, n, prm["tol"])
         if wrong is None:
             break
+        used = list(plan) + [False] * (len(wrong) - len(plan))
+        missed = next(i for i, (a, b) in enumerate(zip(wrong, used)) if a != b)
         plan = wrong
-        log.info("denoise: the plan missed decision %d; running again", len(plan) - 1)
+        log.info("denoise: the plan missed decision %d; running again", missed)
     flips = 0
     if normals is None:
         flips = _align_signs(runner, src, nrm, align)
@@ -776,7 +778,7 @@ def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
             del fut
             advance()
             submit()
-    runner.times["score model"] = t1 - t0
+    log.info("score model fitted on the driver in %.1f s (serial)", t1 - t0)
     runner.times["score rows"] = time.perf_counter() - t1
     return score
 
@@ -935,7 +937,8 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
                         max_iter=prm["max_iter"], max_train=prm["max_train"],
                         seed=prm["seed"], code_all=False, order="rows").dictionary
         advance()
-    runner.times["simplify dictionary"] = time.perf_counter() - t0
+    log.info("simplify: scales and dictionary on the driver in %.1f s (serial)",
+             time.perf_counter() - t0)
     t1 = time.perf_counter()
     nnz = np.zeros(n, dtype=np.int64)
     res = np.zeros(n)
