@@ -139,7 +139,8 @@ def feature_scales(sigma: np.ndarray, P: np.ndarray, feature_scale: str) -> tupl
         rms_s = float(np.sqrt(np.mean(sigma ** 2)))
         sq = np.empty(len(P))  # noqa: NPY-empty -- every chunk written below
         for s0 in range(0, len(P), CHUNK):
-            sq[s0:s0 + CHUNK] = np.einsum("ij,ij->i", P[s0:s0 + CHUNK], P[s0:s0 + CHUNK])
+            block = P[s0:s0 + CHUNK]
+            sq[s0:s0 + CHUNK] = np.einsum("ij,ij->i", block, block)
         return (rms_s if rms_s > 0 else 1.0), float(np.sqrt(np.mean(sq)))
     lo = np.min([P[s0:s0 + CHUNK].min(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
     hi = np.max([P[s0:s0 + CHUNK].max(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
@@ -450,7 +451,7 @@ def simplify_sdbs(points, normals=None, *, ratio: float | None = None,
     n = len(P)
     N = None if normals is None else as_normals(normals, n, func=func)
     check_spread(P, func=func)
-    target = _target(ratio, count, n, func)
+    target = target_count(ratio, count, n, func)
 
     P = P - P.mean(axis=0)
     tree = build_tree(P)
@@ -543,7 +544,7 @@ def sdbs_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: in
     return {"exact": True, "keep": keep[core]}
 
 
-def _target(ratio, count, n: int, func: str) -> int | None:
+def target_count(ratio, count, n: int, func: str) -> int | None:
     """The number of points to keep, or None when δ is given."""
     if count is not None:
         if count > n:

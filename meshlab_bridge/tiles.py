@@ -744,8 +744,6 @@ def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
     code depends on the row and the model only)."""
     import time
 
-    from dask.distributed import as_completed
-
     from pcprep.filters.multiscale import fit_score_model
 
     t0 = time.perf_counter()
@@ -755,32 +753,47 @@ def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
         model = fit_score_model(F, cfg)
         advance()
     t1 = time.perf_counter()
-    client = runner.client
-    [shared] = client.scatter([model], broadcast=True)
     score = np.empty(n)  # noqa: NPY-empty -- every chunk written below
-    starts = list(range(0, n, CHUNK // 4))
+
+    def collect(s0, part):
+        score[s0:s0 + len(part)] = part
+
+    _map_rows(runner, "score rows", _score_task, n,
+              lambda s0, e: np.ascontiguousarray(F[s0:e]), model, cfg, collect)
+    log.info("score model fitted on the driver in %.1f s (serial)", t1 - t0)
+    return score
+
+
+def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collect) -> None:
+    """``collect(s0, fn(rows(s0, e), shared, arg))`` for row chunks ``[s0, e)``
+    of a cloud of ``n`` rows, run on the workers with ``shared`` (a model or a
+    dictionary) broadcast once; the driver keeps ``IN_FLIGHT`` chunks per
+    worker in flight.  The pass's wall time goes to ``runner.times[label]``."""
+    import time
+
+    from dask.distributed import as_completed
+
+    t0 = time.perf_counter()
+    client = runner.client
+    [model] = client.scatter([shared], broadcast=True)
+    step = CHUNK // 4
+    starts = list(range(0, n, step))
     limit = IN_FLIGHT * max(1, len(client.scheduler_info()["workers"]))
-    futures = as_completed()
-    meta = {}
-    with progress.step("score rows", len(starts)) as advance:
+    futures, meta = as_completed(), {}
+    with progress.step(label, len(starts)) as advance:
         def submit():
             while starts and futures.count() < limit:
                 s0 = starts.pop(0)
-                fut = _submit(client, _score_task, np.ascontiguousarray(F[s0:s0 + CHUNK // 4]),
-                              shared, cfg)
+                fut = _submit(client, fn, rows(s0, min(n, s0 + step)), model, arg)
                 meta[fut.key] = s0
                 futures.add(fut)
         submit()
         for fut in futures:
-            s0 = meta.pop(fut.key)
-            part = fut.result()
-            score[s0:s0 + len(part)] = part
+            collect(meta.pop(fut.key), fut.result())
             del fut
             advance()
             submit()
-    log.info("score model fitted on the driver in %.1f s (serial)", t1 - t0)
-    runner.times["score rows"] = time.perf_counter() - t1
-    return score
+    runner.times[label] = time.perf_counter() - t0
 
 
 def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
@@ -813,7 +826,7 @@ def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
     T = sharp.threshold(score, cfg, sharp.DEFAULT_RULES)
     mask = score > T                                              # (7.11)
     ridge = score * ridge_pd
-    del ridge_pd
+    ridge_pd = None  # freed: the gates read ``ridge``
     final = np.zeros(n, dtype=bool)
 
     def collect_gates(rows, core, res):
@@ -899,14 +912,12 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
     measure."""
     import time
 
-    from dask.distributed import as_completed
-
     from pcprep.filters import simplify as sd
     from pcprep.filters import sparse
 
     n = src.n
     sd.size_params(prm["ratio"], prm["count"], prm["delta"], "simplify_sdbs")
-    target = sd._target(prm["ratio"], prm["count"], n, "simplify_sdbs")
+    target = sd.target_count(prm["ratio"], prm["count"], n, "simplify_sdbs")
     k = prm["k"]
     centre = _chunked_mean(src.xyz)
     nrm = np.zeros((n, 3))
@@ -931,7 +942,7 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
     for s0 in range(0, n, CHUNK):
         F[s0:s0 + CHUNK] = sd.scale_features(nrm[s0:s0 + CHUNK], sigma[s0:s0 + CHUNK],
                                              P[s0:s0 + CHUNK], prm["feature_scale"], scales)
-    del nrm, sigma
+    nrm = sigma = None  # freed: the features are in F
     with progress.step("simplify dictionary", 1) as advance:
         D = sparse.ksvd(F, prm["n_atoms"], n_nonzero_coefs=min(3, 7, prm["n_atoms"]),
                         max_iter=prm["max_iter"], max_train=prm["max_train"],
@@ -939,31 +950,14 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
         advance()
     log.info("simplify: scales and dictionary on the driver in %.1f s (serial)",
              time.perf_counter() - t0)
-    t1 = time.perf_counter()
     nnz = np.zeros(n, dtype=np.int64)
     res = np.zeros(n)
-    client = runner.client
-    [shared] = client.scatter([D], broadcast=True)
-    starts = list(range(0, n, CHUNK // 4))
-    limit = IN_FLIGHT * max(1, len(client.scheduler_info()["workers"]))
-    futures, meta = as_completed(), {}
-    with progress.step("simplify codes", len(starts)) as advance:
-        def submit():
-            while starts and futures.count() < limit:
-                s0 = starts.pop(0)
-                fut = _submit(client, _code_task, np.array(F[s0:s0 + CHUNK // 4]), shared,
-                              prm["alpha"])
-                meta[fut.key] = s0
-                futures.add(fut)
-        submit()
-        for fut in futures:
-            s0 = meta.pop(fut.key)
-            a, b = fut.result()
-            nnz[s0:s0 + len(a)], res[s0:s0 + len(b)] = a, b
-            del fut
-            advance()
-            submit()
-    runner.times["simplify codes"] = time.perf_counter() - t1
+
+    def collect_codes(s0, part):
+        nnz[s0:s0 + len(part[0])], res[s0:s0 + len(part[1])] = part
+
+    _map_rows(runner, "simplify codes", _code_task, n, lambda s0, e: np.array(F[s0:e]), D,
+              prm["alpha"], collect_codes)
     score = sd.normalised_saliency(nnz, res)
     unit = hs * (np.maximum(rows6, 1e-3 * hs) / hs) ** prm["density_adapt"]
     inv = 1.0 / np.maximum(score, prm["sf_floor"])
