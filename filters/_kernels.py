@@ -1,8 +1,12 @@
 """
 _kernels.py
 -----------
-Compiled per-signal solvers of the sparse core (numba): Lasso by LARS and
-orthogonal matching pursuit, one signal at a time.
+Compiled kernels (numba): the per-signal solvers of the sparse core (Lasso by
+LARS and orthogonal matching pursuit, one signal at a time), the per-problem
+Lasso of ``lasso_batched``, the k-NN graph orientation of
+``neighbors.orient_normals_mst`` (Kruskal with a signed union-find) and the
+per-neighbourhood geometry of the saliency filter.  Each has a NumPy
+reference that runs when ``ENABLED`` is False; the tests compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
 up to 10^6 points) on one shared dictionary.  The NumPy solvers in
@@ -382,3 +386,424 @@ if HAVE_NUMBA:
                 j = extra[e]
                 if rank[j] > t:
                     state[j] = 2
+
+    @_jit()
+    def _lasso_kkt_try(G, c, lam, coef, act, kkt_tol, ridge, idx, M, rhs, sol, a, grad):
+        """Exact Lasso point on the support ``act`` with the signs of ``coef``:
+        solve ``G_AA a_A = c_A − λ s_A`` and check the KKT conditions (signs
+        kept, inactive |c − G a| ≤ λ, stationarity on the support).  Writes the
+        point into ``a`` and returns whether it is certified."""
+        m = c.shape[0]
+        na = 0
+        for j in range(m):
+            if act[j]:
+                idx[na] = j
+                rhs[na] = c[j] - (lam if coef[j] > 0.0 else -lam)
+                na += 1
+        _chol_solve(G, idx, na, ridge, M, rhs, sol)
+        for j in range(m):
+            a[j] = 0.0
+        for p in range(na):
+            if not np.isfinite(sol[p]):
+                return False
+            a[idx[p]] = sol[p]
+        cmax = 1.0
+        for j in range(m):
+            cmax = max(cmax, abs(c[j]))
+            v = c[j]
+            for k in range(na):
+                v -= G[j, idx[k]] * sol[k]
+            grad[j] = v
+        scale = max(lam, 1e-300) * (1.0 + kkt_tol)
+        for j in range(m):
+            if act[j]:
+                s = 1.0 if coef[j] > 0.0 else -1.0
+                if not a[j] * s > 0.0:
+                    return False
+                if not abs(grad[j] - lam * s) <= kkt_tol * cmax:
+                    return False
+            elif not abs(grad[j]) <= scale:
+                return False
+        return True
+
+    @_jit()
+    def _lasso_polish(G, c, lam, coef, kkt_tol, ridge, sdiag, drop_one, act, prev,
+                      idx, M, rhs, sol, a, grad):
+        """The exact step of :func:`_lasso_one`: the support of ``coef``, then
+        three pruned supports (coordinate descent creeps toward zero on atoms
+        that leave the support), then, when ``drop_one``, the support less one
+        atom.  Returns whether one of them is certified (its point in ``a``)."""
+        m = c.shape[0]
+        top = 0.0
+        for j in range(m):
+            act[j] = coef[j] != 0.0
+            prev[j] = act[j]
+            top = max(top, abs(coef[j]) * sdiag[j])
+        if _lasso_kkt_try(G, c, lam, coef, act, kkt_tol, ridge, idx, M, rhs, sol, a,
+                          grad):
+            return True
+        for rel in (1e-6, 1e-3, 3e-2):
+            same = True
+            for j in range(m):
+                act[j] = abs(coef[j]) * sdiag[j] > rel * top
+                same = same and act[j] == prev[j]
+                prev[j] = act[j]
+            if not same and _lasso_kkt_try(G, c, lam, coef, act, kkt_tol, ridge, idx,
+                                           M, rhs, sol, a, grad):
+                return True
+        if drop_one:
+            for j0 in range(m):
+                if coef[j0] == 0.0:
+                    continue
+                for j in range(m):
+                    act[j] = coef[j] != 0.0 and j != j0
+                if _lasso_kkt_try(G, c, lam, coef, act, kkt_tol, ridge, idx, M, rhs,
+                                  sol, a, grad):
+                    return True
+        return False
+
+    @_jit()
+    def _lasso_one(x, D, lam, max_iter, tol, kkt_tol, drop_one, G, c, coef, g, diag,
+                   sdiag, act, prev, idx, M, rhs, sol, a, grad):
+        """Lasso ``½‖x − D α‖² + λ‖α‖₁`` of one signal with its own dictionary
+        by cyclic coordinate descent on ``G = DᵀD`` and ``c = Dᵀx``, with the
+        exact step of :func:`_lasso_polish` after sweeps 2, 4, 8, 16, 32, every
+        64th and the last (supports less one atom only after the last, when
+        ``drop_one``).  ``coef`` receives the solution;
+        returns (sweeps, converged)."""
+        d, m = D.shape
+        trace = 0.0
+        cmax = 1.0
+        for j in range(m):
+            v = 0.0
+            for t in range(d):
+                v += D[t, j] * x[t]
+            c[j] = v
+            g[j] = v
+            coef[j] = 0.0
+            cmax = max(cmax, abs(v))
+            for k in range(j + 1):
+                w = 0.0
+                for t in range(d):
+                    w += D[t, j] * D[t, k]
+                G[j, k] = w
+                G[k, j] = w
+            diag[j] = G[j, j]
+            sdiag[j] = np.sqrt(diag[j])
+            trace += diag[j]
+        ridge = 1e-13 * max(trace, 1e-300)
+        stop = tol * cmax
+        for sweep in range(1, max_iter + 1):
+            change = 0.0
+            for j in range(m):
+                if not diag[j] > 0.0:
+                    continue
+                old = coef[j]
+                z = g[j] + diag[j] * old
+                if z > lam:
+                    new = (z - lam) / diag[j]
+                elif z < -lam:
+                    new = (z + lam) / diag[j]
+                else:
+                    new = 0.0
+                delta = new - old
+                if delta != 0.0:
+                    coef[j] = new
+                    for k in range(m):
+                        g[k] -= G[j, k] * delta
+                    change = max(change, abs(delta) * sdiag[j])
+            done = change <= stop
+            last = sweep == max_iter
+            if (last or sweep == 2 or sweep == 4 or sweep == 8
+                    or sweep == 16 or sweep == 32 or sweep % 64 == 0):
+                if _lasso_polish(G, c, lam, coef, kkt_tol, ridge, sdiag,
+                                 last and drop_one, act, prev, idx, M, rhs, sol, a,
+                                 grad):
+                    for j in range(m):
+                        coef[j] = a[j]
+                    return sweep, True
+            if done:
+                return sweep, True
+        return max_iter, False
+
+    @_jit()
+    def lasso_stack(X, D, lam, max_iter, tol, kkt_tol, drop_one):
+        """Lasso codes of every X[i] against its own dictionary D[i] (atoms in
+        the columns) with weight lam[i]: (coef (n, m), converged (n,), the
+        largest number of sweeps)."""
+        n, d, m = D.shape
+        coef = np.zeros((n, m))
+        conv = np.zeros(n, dtype=np.bool_)
+        G = np.empty((m, m))
+        M = np.zeros((m, m))
+        c = np.empty(m)
+        g = np.empty(m)
+        diag = np.empty(m)
+        sdiag = np.empty(m)
+        act = np.zeros(m, dtype=np.bool_)
+        prev = np.zeros(m, dtype=np.bool_)
+        idx = np.zeros(m, dtype=np.int64)
+        rhs = np.empty(m)
+        sol = np.empty(m)
+        a = np.empty(m)
+        grad = np.empty(m)
+        most = 0
+        for i in range(n):
+            it, ok = _lasso_one(X[i], D[i], lam[i], max_iter, tol, kkt_tol, drop_one,
+                                G, c, coef[i], g, diag, sdiag, act, prev, idx, M, rhs,
+                                sol, a, grad)
+            conv[i] = ok
+            most = max(most, it)
+        return coef, conv, most
+
+    @_jit()
+    def orient_edges(points, normals, nb, mirror):
+        """Edges of the k-NN graph of ``neighbors.orient_normals_mst``: each
+        undirected edge once (row i keeps neighbour j when i < j or when i is
+        not among j's neighbours), its cost 1 − |agreement| + 1e-6 as float32
+        and the sign of the agreement (the plain n_i·n_j, or with ``mirror`` the
+        chord-mirrored product when that is larger in magnitude)."""
+        n, m = nb.shape
+        keep = np.zeros((n, m), dtype=np.bool_)
+        cnt = 0
+        for i in range(n):
+            for k in range(m):
+                j = nb[i, k]
+                if i < j:
+                    keep[i, k] = True
+                    cnt += 1
+                    continue
+                mutual = False
+                for q in range(m):
+                    if nb[j, q] == i:
+                        mutual = True
+                        break
+                if not mutual:
+                    keep[i, k] = True
+                    cnt += 1
+        ei = np.empty(cnt, dtype=np.int64)
+        ej = np.empty(cnt, dtype=np.int64)
+        cost = np.empty(cnt, dtype=np.float32)
+        sign = np.empty(cnt, dtype=np.int8)
+        t = 0
+        for i in range(n):
+            for k in range(m):
+                if not keep[i, k]:
+                    continue
+                j = nb[i, k]
+                plain = (normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1]
+                         + normals[i, 2] * normals[j, 2])
+                agree = plain
+                if mirror:
+                    e0 = points[j, 0] - points[i, 0]
+                    e1 = points[j, 1] - points[i, 1]
+                    e2 = points[j, 2] - points[i, 2]
+                    ee = e0 * e0 + e1 * e1 + e2 * e2
+                    a = normals[i, 0] * e0 + normals[i, 1] * e1 + normals[i, 2] * e2
+                    b = normals[j, 0] * e0 + normals[j, 1] * e1 + normals[j, 2] * e2
+                    mir = plain - 2.0 * a * b / (ee if ee > 0.0 else 1.0)
+                    if abs(mir) > abs(plain):
+                        agree = mir
+                ei[t] = i
+                ej[t] = j
+                cost[t] = np.float32(1.0 - abs(agree) + 1e-6)
+                sign[t] = -1 if agree < 0.0 else 1
+                t += 1
+        return ei, ej, cost, sign
+
+    @_jit(inline="always")
+    def _find(parent, parity, i):
+        """Root of i in the union-find forest and the parity (±1) of i relative
+        to it; compresses the path."""
+        r = i
+        p = 1
+        while parent[r] != r:
+            p *= parity[r]
+            r = parent[r]
+        # second pass: point every node of the path at r with its own parity
+        q = 1
+        while parent[i] != r and parent[i] != i:
+            nxt = parent[i]
+            pi = parity[i]
+            parity[i] = p * q
+            parent[i] = r
+            q *= pi
+            i = nxt
+        return r, p
+
+    @_jit()
+    def kruskal_signs(order, ei, ej, sign, n):
+        """Kruskal's minimum spanning forest over the edges in ``order`` (by
+        cost), tracking through a union-find with parity the sign of every
+        node relative to its component's representative: joining i and j by an
+        edge of agreement sign s makes sign(i)·sign(j) = s.  Returns
+        (representative (n,), relative sign (n,) int8)."""
+        parent = np.arange(n)
+        parity = np.ones(n, dtype=np.int8)
+        size = np.ones(n, dtype=np.int64)
+        for t in range(order.shape[0]):
+            e = order[t]
+            ri, pi = _find(parent, parity, ei[e])
+            rj, pj = _find(parent, parity, ej[e])
+            if ri == rj:
+                continue
+            p = np.int8(sign[e] * pi * pj)
+            if size[ri] < size[rj]:
+                ri, rj = rj, ri
+            parent[rj] = ri
+            parity[rj] = p
+            size[ri] += size[rj]
+        rep = np.empty(n, dtype=np.int64)
+        rel = np.empty(n, dtype=np.int8)
+        for i in range(n):
+            r, p = _find(parent, parity, i)
+            rep[i] = r
+            rel[i] = p
+        return rep, rel
+
+    @_jit()
+    def hood_mean(idx, count, values):
+        """Mean of ``values`` (n, q) over the first count[i] entries of idx[i]."""
+        n = idx.shape[0]
+        q = values.shape[1]
+        out = np.zeros((n, q))
+        for i in range(n):
+            c = count[i]
+            for k in range(c):
+                j = idx[i, k]
+                for t in range(q):
+                    out[i, t] += values[j, t]
+            for t in range(q):
+                out[i, t] /= c
+        return out
+
+    @_jit()
+    def _sign_by_skew(diff, c, fr, a):
+        """+1/−1: the sign that makes the third moment of the projections on
+        axis ``a`` positive (the farthest projection when it nearly vanishes)."""
+        skew = 0.0
+        ss = 0.0
+        far = 0.0
+        best = -1.0
+        for k in range(c):
+            p = diff[k, 0] * fr[0, a] + diff[k, 1] * fr[1, a] + diff[k, 2] * fr[2, a]
+            skew += p * p * p
+            ss += p * p
+            if abs(p) > best:
+                best = abs(p)
+                far = p
+        v = skew if abs(skew) > 1e-6 * ss ** 1.5 else far
+        return -1.0 if v < 0.0 else 1.0
+
+    @_jit()
+    def saliency_geometry(points, idx, count, r, n_rays):
+        """Per neighbourhood, in one pass: the PCA frame with data-fixed signs,
+        the quadric's Gaussian and total curvature, and the ray atoms; the
+        compiled form of ``saliency.local_frames_and_curvature`` and
+        ``saliency._ray_atoms`` (same rules, see there)."""
+        n, kmax = idx.shape
+        frames = np.zeros((n, 3, 3))
+        gauss = np.zeros(n)
+        total = np.zeros(n)
+        atoms = np.zeros((n, n_rays), dtype=np.int32)
+        ends = np.empty((n_rays, 2))
+        for m in range(n_rays):
+            th = 2.0 * np.pi * m / n_rays
+            ends[m, 0] = r * np.cos(th)
+            ends[m, 1] = r * np.sin(th)
+        diff = np.empty((kmax, 3))
+        loc = np.empty((kmax, 3))
+        cov = np.empty((3, 3))
+        fr = np.empty((3, 3))
+        M = np.empty((6, 6))
+        L = np.zeros((6, 6))
+        rhs = np.empty(6)
+        q = np.empty(6)
+        row = np.empty(6)
+        sel = np.arange(6)
+        for i in range(n):
+            c = count[i]
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for k in range(c):
+                j = idx[i, k]
+                m0 += points[j, 0]
+                m1 += points[j, 1]
+                m2 += points[j, 2]
+            m0 /= c
+            m1 /= c
+            m2 /= c
+            for a in range(3):
+                for b in range(3):
+                    cov[a, b] = 0.0
+            for k in range(c):
+                j = idx[i, k]
+                diff[k, 0] = points[j, 0] - m0
+                diff[k, 1] = points[j, 1] - m1
+                diff[k, 2] = points[j, 2] - m2
+                for a in range(3):
+                    for b in range(3):
+                        cov[a, b] += diff[k, a] * diff[k, b]
+            _, vec = np.linalg.eigh(cov)
+            for a in range(3):
+                fr[a, 0] = vec[a, 2]
+                fr[a, 1] = vec[a, 1]
+            for ax in range(2):
+                s = _sign_by_skew(diff, c, fr, ax)
+                for a in range(3):
+                    fr[a, ax] *= s
+            fr[0, 2] = fr[1, 0] * fr[2, 1] - fr[2, 0] * fr[1, 1]
+            fr[1, 2] = fr[2, 0] * fr[0, 1] - fr[0, 0] * fr[2, 1]
+            fr[2, 2] = fr[0, 0] * fr[1, 1] - fr[1, 0] * fr[0, 1]
+            for a in range(3):
+                for b in range(3):
+                    frames[i, a, b] = fr[a, b]
+            # the quadric w = a u² + b uv + c v² + d u + e v + f in the frame
+            for a in range(6):
+                rhs[a] = 0.0
+                for b in range(6):
+                    M[a, b] = 0.0
+            for k in range(c):
+                j = idx[i, k]
+                e0 = points[j, 0] - points[i, 0]
+                e1 = points[j, 1] - points[i, 1]
+                e2 = points[j, 2] - points[i, 2]
+                for a in range(3):
+                    loc[k, a] = e0 * fr[0, a] + e1 * fr[1, a] + e2 * fr[2, a]
+                u = loc[k, 0] / r
+                v = loc[k, 1] / r
+                z = loc[k, 2] / r
+                row[0] = u * u
+                row[1] = u * v
+                row[2] = v * v
+                row[3] = u
+                row[4] = v
+                row[5] = 1.0
+                for a in range(6):
+                    rhs[a] += row[a] * z
+                    for b in range(a + 1):
+                        M[a, b] += row[a] * row[b]
+            tr = 0.0
+            for a in range(6):
+                tr += M[a, a]
+                for b in range(a):
+                    M[b, a] = M[a, b]
+            tr = max(tr, 1.0)
+            _chol_solve(M, sel, 6, 1e-9 * tr, L, rhs, q)
+            g2 = 1.0 + q[3] * q[3] + q[4] * q[4]
+            gauss[i] = (4.0 * q[0] * q[2] - q[1] * q[1]) / (g2 * g2) / (r * r)
+            total[i] = 2.0 * np.sqrt(q[0] * q[0] + q[2] * q[2] + 0.5 * q[1] * q[1]) / r
+            # ray atoms: the neighbour nearest each ray end in the tangent plane
+            for m in range(n_rays):
+                best = np.inf
+                kb = 0
+                for k in range(c):
+                    u = loc[k, 0]
+                    v = loc[k, 1]
+                    d2 = u * u + v * v - 2.0 * (u * ends[m, 0] + v * ends[m, 1])
+                    if d2 < best:
+                        best = d2
+                        kb = k
+                atoms[i, m] = idx[i, kb]
+        return frames, gauss, total, atoms

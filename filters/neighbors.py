@@ -20,7 +20,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from . import progress
+from . import _kernels, progress
 from ._validation import PointCloudError
 
 #: neighbours used for the average spacing h (thesis §4.5.1)
@@ -306,6 +306,8 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     m = nb.shape[1]
     if m == 0:
         return normals
+    if _kernels.ENABLED:
+        return _orient_compiled(points, normals, nb, mirror)
     # each undirected edge once: (i, j) is kept when i < j, or when i is not among
     # j's own neighbours (mutual k-NN pairs would otherwise appear twice)
     keep = np.zeros((n, m), dtype=bool)
@@ -356,6 +358,34 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
         live = ~is_root[ptr]
     root_sign = np.where(normals[:, 2] < 0, -1.0, 1.0)
     return normals * (acc * root_sign[ptr])[:, None]
+
+
+def _orient_compiled(points, normals, nb, mirror):
+    """The same orientation as :func:`orient_normals_mst`, compiled: Kruskal's
+    forest over the edges sorted by cost, with a union-find that carries each
+    node's sign relative to its component (no graph matrix, no traversal); each
+    component is then rooted at its highest point as before.  Where several
+    spanning trees have equal cost the two may pick different ones; a sign
+    differs only where two such trees disagree, i.e. on a cycle of
+    contradicting agreements."""
+    n = len(points)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    ei, ej, cost, sign = _kernels.orient_edges(pts, normals,
+                                               np.ascontiguousarray(nb, dtype=np.int64),
+                                               bool(mirror))
+    order = np.argsort(cost, kind="quicksort")
+    del cost
+    rep, rel = _kernels.kruskal_signs(order, ei, ej, sign, n)
+    del order, ei, ej, sign
+    # the component's root: its highest point (ties: the smallest index)
+    order = np.lexsort((-points[:, 2], rep))
+    first = np.ones(n, dtype=bool)
+    first[1:] = rep[order[1:]] != rep[order[:-1]]
+    top = np.empty(n, dtype=np.int64)
+    top[rep[order[first]]] = order[first]
+    root = top[rep]
+    root_sign = np.where(normals[root, 2] < 0, -1.0, 1.0)
+    return normals * (rel.astype(np.float64) * rel[root] * root_sign)[:, None]
 
 
 def orient_normals_toward(points: np.ndarray, normals: np.ndarray, viewpoint) -> np.ndarray:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import progress
+from . import _kernels, progress
 from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
@@ -111,6 +111,9 @@ class _Hood:
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         """Mean of ``values`` (n, ...) over every neighbourhood."""
+        if _kernels.ENABLED:
+            v = np.ascontiguousarray(values, dtype=np.float64).reshape(len(values), -1)
+            return _kernels.hood_mean(self.idx, self.count, v).reshape(values.shape)
         out = np.zeros((len(self.idx),) + values.shape[1:])
         for s in range(0, len(self.idx), CHUNK):
             e = min(len(self.idx), s + CHUNK)
@@ -190,6 +193,8 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
     mean_abs : (n,) float
         √(k1² + k2²) of the same fit (used by the curvature-magnitude baseline).
     """
+    if _kernels.ENABLED:
+        return _geometry(points, hood, r, 0)[:3]
     n = len(points)
     frames = np.zeros((n, 3, 3))
     gauss = np.zeros(n)
@@ -252,6 +257,18 @@ def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
     kk = min(k + 1, hood.idx.shape[1])
     return orient_normals_mst(points, normals, k=kk - 1, neighbors=hood.idx[:, 1:kk],
                               mirror=True)
+
+
+def _geometry(points: np.ndarray, hood: _Hood, r: float, n_rays: int):
+    """Frames, Gaussian and total curvature (:func:`local_frames_and_curvature`)
+    and the ray atoms (:func:`_ray_atoms`) of every neighbourhood; in one
+    compiled pass when numba is available, else by the NumPy functions."""
+    if _kernels.ENABLED:
+        return _kernels.saliency_geometry(np.ascontiguousarray(points, dtype=np.float64),
+                                          hood.idx, hood.count.astype(np.int64),
+                                          float(r), int(n_rays))
+    frames, gauss, total = local_frames_and_curvature(points, hood, r)
+    return frames, gauss, total, _ray_atoms(points, hood, frames, r, n_rays)
 
 
 def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
@@ -376,10 +393,9 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, r,
              int(np.median(hood.count)))
 
-    frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
-    # surroundings (§5.3.2.2) first, so that the frames are freed before the
-    # memory-hungry MST orientation
-    atoms = _ray_atoms(pts, hood, frames, r, n_rays)
+    # surroundings (§5.3.2.2) with the frames, so that these are freed before
+    # the MST orientation
+    frames, gauss, _, atoms = _geometry(pts, hood, r, n_rays)
     pca_normal = np.ascontiguousarray(frames[:, :, 2])
     del frames
     if nrm is None:
@@ -470,8 +486,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     sure = tile_exact(pts, hood.idx, kth, lo, hi, hops if stage == "code" else 1)
     if not sure[core].all():
         return {"exact": False}
-    frames, gauss, _ = local_frames_and_curvature(pts, hood, r)
-    atoms = _ray_atoms(pts, hood, frames, r, n_rays)
+    frames, gauss, _, atoms = _geometry(pts, hood, r, n_rays)
     nrm = orient_normals_hood(pts, np.ascontiguousarray(frames[:, :, 2]), hood)
     del frames
     F4 = np.column_stack([nrm, gauss * r * r])

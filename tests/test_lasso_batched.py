@@ -1,4 +1,5 @@
-"""Tests of filters/lasso_batched.py: the batched Lasso agrees with scikit-learn."""
+"""Tests of filters/lasso_batched.py: the batched Lasso agrees with scikit-learn,
+on the compiled path (numba) and on the NumPy reference alike."""
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ def _problems(rng, n=60, d=5, m=10):
 
 
 @pytest.mark.parametrize("lam", [0.05, 0.5, 0.9, 2.0])
-def test_matches_sklearn_lasso_and_lassolars(rng, lam):
+def test_matches_sklearn_lasso_and_lassolars(rng, solver_path, lam):
     x, D = _problems(rng)
     res = lasso_batched(x, D, lam)
     assert res.converged.all()
@@ -28,7 +29,7 @@ def test_matches_sklearn_lasso_and_lassolars(rng, lam):
     np.testing.assert_allclose(res.residual, x - np.einsum("ndm,nm->nd", D, res.coef))
 
 
-def test_per_problem_alpha_equals_separate_calls(rng):
+def test_per_problem_alpha_equals_separate_calls(rng, solver_path):
     x, D = _problems(rng, n=40)
     lam = rng.uniform(0.1, 1.5, size=len(x))
     together = lasso_batched(x, D, lam).coef
@@ -38,7 +39,7 @@ def test_per_problem_alpha_equals_separate_calls(rng):
         np.testing.assert_allclose(together[i], alone, atol=1e-9)
 
 
-def test_kkt_conditions_hold(rng):
+def test_kkt_conditions_hold(rng, solver_path):
     x, D = _problems(rng, n=200, m=12)
     lam = 0.7
     a = lasso_batched(x, D, lam).coef
@@ -48,7 +49,7 @@ def test_kkt_conditions_hold(rng):
     assert (np.abs(grad[~act]) <= lam + 1e-8).all()
 
 
-def test_large_alpha_gives_zero_and_zero_alpha_gives_least_squares(rng):
+def test_large_alpha_gives_zero_and_zero_alpha_gives_least_squares(rng, solver_path):
     x, D = _problems(rng, n=30, d=8, m=4)  # overdetermined: unique LS solution
     big = np.abs(np.einsum("ndm,nd->nm", D, x)).max() + 1e-9
     assert (lasso_batched(x, D, big).coef == 0).all()
@@ -56,7 +57,7 @@ def test_large_alpha_gives_zero_and_zero_alpha_gives_least_squares(rng):
     np.testing.assert_allclose(lasso_batched(x, D, 0.0).coef, ls, atol=1e-8)
 
 
-def test_zero_and_duplicate_atoms(rng):
+def test_zero_and_duplicate_atoms(rng, solver_path):
     x, D = _problems(rng, n=20, m=6)
     D[:, :, 0] = 0.0
     res = lasso_batched(x, D, 0.3)
@@ -69,12 +70,32 @@ def test_zero_and_duplicate_atoms(rng):
     np.testing.assert_allclose(f(x, D2, res2.coef), f(x, D, res.coef), atol=1e-8)
 
 
-def test_chunks_do_not_change_the_answer(rng, monkeypatch):
+def test_chunks_do_not_change_the_answer(rng, solver_path, monkeypatch):
     import pcprep.filters.lasso_batched as lb
     x, D = _problems(rng, n=100)
     whole = lasso_batched(x, D, 0.4).coef
     monkeypatch.setattr(lb, "CHUNK", 7)
     np.testing.assert_array_equal(lasso_batched(x, D, 0.4).coef, whole)
+
+
+def test_compiled_and_numpy_paths_agree(rng, monkeypatch):
+    """The numba kernel and the stacked NumPy solver certify the same optimum,
+    also on the saliency-like shape (d = 5, m = 8) with many ill-posed
+    problems (m > d: the support must be chosen among dependent atoms)."""
+    from pcprep.filters import _kernels
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    x, D = _problems(rng, n=3000, d=5, m=8)
+    lam = rng.uniform(0.05, 1.0, size=len(x))
+    out = {}
+    for enabled in (True, False):
+        monkeypatch.setattr(_kernels, "ENABLED", enabled)
+        out[enabled] = lasso_batched(x, D, lam)
+    assert out[True].converged.mean() > 0.99
+    both = out[True].converged & out[False].converged
+    np.testing.assert_allclose(out[True].coef[both], out[False].coef[both], atol=1e-8)
+    np.testing.assert_array_equal(out[True].coef[both] != 0, out[False].coef[both] != 0)
 
 
 def test_inputs_untouched(rng):

@@ -61,7 +61,7 @@ def test_plane_features_have_known_values(rng):
     assert np.allclose(res.sphericity, 0.0, atol=1e-12)
 
 
-def test_mst_orientation_is_consistent_and_outward_on_a_sphere():
+def test_mst_orientation_is_consistent_and_outward_on_a_sphere(solver_path):
     p = sphere_points(8000, seed=2)
     n = pca_normals(p, 12, orient=False)
     # scramble signs, then re-orient
@@ -71,7 +71,28 @@ def test_mst_orientation_is_consistent_and_outward_on_a_sphere():
     assert (np.einsum("ij,ij->i", out, p) > 0).all()
 
 
-def test_mst_orientation_handles_separate_components():
+def test_mst_orientation_compiled_equals_reference(monkeypatch):
+    """Kruskal with a signed union-find (compiled) and scipy's spanning tree
+    with a traversal (reference) give the same signs, also with the
+    chord-mirrored agreement, on two separate noisy components."""
+    from pcprep.filters import _kernels
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    g = np.random.default_rng(8)
+    p = np.r_[sphere_points(3000, seed=6), sphere_points(2000, seed=7) * 0.5 + [4.0, 0, 0]]
+    p = p + 0.01 * g.standard_normal(p.shape)
+    n = pca_normals(p, 12, orient=False)
+    n[g.random(len(p)) < 0.5] *= -1
+    for mirror in (False, True):
+        out = {}
+        for enabled in (True, False):
+            monkeypatch.setattr(_kernels, "ENABLED", enabled)
+            out[enabled] = orient_normals_mst(p, n, k=10, mirror=mirror)
+        np.testing.assert_array_equal(out[True], out[False])
+
+
+def test_mst_orientation_handles_separate_components(solver_path):
     a = sphere_points(3000, seed=4)
     b = sphere_points(3000, seed=5) + [10.0, 0, 0]
     pts = np.r_[a, b]

@@ -184,6 +184,29 @@ def test_estimated_normals_point_outward_on_a_closed_surface():
     assert (np.einsum("ij,ij->i", res.normals, s.normals) > 0.9).mean() > 0.99
 
 
+def test_compiled_geometry_equals_reference(monkeypatch):
+    """The one-pass compiled frames, curvatures, ray atoms and neighbourhood
+    means agree with the NumPy functions (frames up to the sign-free tangent
+    choice where the PCA is degenerate: compared through the normal)."""
+    from pcprep.filters import _kernels
+    from pcprep.filters.saliency import _geometry
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    s = make_shape("bumpy_plane", n=3000, seed=5)
+    hood, h = neighbourhoods(s.points, 3.0, 32, build_tree(s.points))
+    out = {}
+    for enabled in (True, False):
+        monkeypatch.setattr(_kernels, "ENABLED", enabled)
+        out[enabled] = _geometry(s.points, hood, 3.0 * h, 8) + (hood.mean(s.points),)
+    (fa, ga, ta, aa, ma), (fb, gb, tb, ab, mb) = out[True], out[False]
+    np.testing.assert_allclose(fa[:, :, 2], fb[:, :, 2], atol=1e-9)
+    np.testing.assert_allclose(ga, gb, rtol=1e-7, atol=1e-9 * np.abs(gb).max())
+    np.testing.assert_allclose(ta, tb, rtol=1e-7, atol=1e-9 * np.abs(tb).max())
+    assert (aa == ab).mean() > 0.999
+    np.testing.assert_allclose(ma, mb, atol=1e-12)
+
+
 def test_ray_atoms_match_a_naive_loop():
     from pcprep.filters.saliency import _ray_atoms
 
