@@ -330,11 +330,7 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     mst = minimum_spanning_tree(graph)
     del graph
     _, labels = connected_components(mst, directed=False)
-    # root each component at its highest point
-    order = np.lexsort((-points[:, 2], labels))
-    first = np.ones(n, dtype=bool)
-    first[1:] = labels[order[1:]] != labels[order[:-1]]
-    roots = order[first]
+    roots = _highest(points, labels)
     parent = np.full(n, -1, dtype=np.int64)
     for r in roots:  # one BFS per connected component (not per point)
         _, pred = breadth_first_order(mst, int(r), directed=False, return_predecessors=True)
@@ -360,6 +356,15 @@ def orient_normals_mst(points: np.ndarray, normals: np.ndarray, k: int = 10, *,
     return normals * (acc * root_sign[ptr])[:, None]
 
 
+def _highest(points, labels):
+    """The root of each component (points sharing a label): its highest point,
+    the smallest index among equals."""
+    order = np.lexsort((-points[:, 2], labels))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = labels[order[1:]] != labels[order[:-1]]
+    return order[first]
+
+
 def _orient_compiled(points, normals, nb, mirror):
     """The same orientation as :func:`orient_normals_mst`, compiled: Kruskal's
     forest over the edges sorted by cost, with a union-find that carries each
@@ -377,12 +382,9 @@ def _orient_compiled(points, normals, nb, mirror):
     del cost
     rep, rel = _kernels.kruskal_signs(order, ei, ej, sign, n)
     del order, ei, ej, sign
-    # the component's root: its highest point (ties: the smallest index)
-    order = np.lexsort((-points[:, 2], rep))
-    first = np.ones(n, dtype=bool)
-    first[1:] = rep[order[1:]] != rep[order[:-1]]
+    roots = _highest(points, rep)
     top = np.empty(n, dtype=np.int64)
-    top[rep[order[first]]] = order[first]
+    top[rep[roots]] = roots
     root = top[rep]
     root_sign = np.where(normals[root, 2] < 0, -1.0, 1.0)
     return normals * (rel.astype(np.float64) * rel[root] * root_sign)[:, None]
