@@ -13,6 +13,7 @@ from functools import partial
 
 import numpy as np
 
+from . import _denoise_jit, _kernels
 from ._denoise_kernels import (CHUNK, WORK, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
                                _run_chunks, _smallest_eigvec, _tau_irls, _tv)
 
@@ -40,18 +41,35 @@ def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
     k = ctx.idx.shape[1]
     cols = np.unique(np.linspace(1, k - 1, min(n_cand, k - 1)).round().astype(int))
     for it in range(init_iter):
-        parts = _run_chunks(partial(_eigen_pass, ctx, normals, tau, first=it == 0), n)
-        new = np.concatenate([q[0] for q in parts], axis=0)
-        tau = np.concatenate([q[1] for q in parts])
+        new, tau = _rows_pass(ctx, _denoise_jit.eigen_rows if _kernels.ENABLED else None,
+                              partial(_eigen_pass, ctx, normals, tau, first=it == 0),
+                              normals, tau, it == 0)
         if it > 0:  # keep each normal's sign from pass to pass
             flip = np.einsum("ij,ij->i", new, normals) < 0
             new[flip] *= -1.0
         normals = new
         if n_cand > 0 and it < SELECT_PASSES:
-            parts = _run_chunks(partial(_select_candidates, ctx, normals, cols), n)
-            normals = np.concatenate([q[0] for q in parts], axis=0)
-            tau = np.concatenate([q[1] for q in parts])
+            normals, tau = _rows_pass(
+                ctx, _denoise_jit.select_rows if _kernels.ENABLED else None,
+                partial(_select_candidates, ctx, normals, cols), normals, cols)
     return normals
+
+
+def _rows_pass(ctx: _Ctx, compiled, reference, normals, arg, *extra):
+    """(normals, τ) of a pass over all rows: the compiled row kernel
+    ``compiled(x, idx, normals, arg, ..., s, e, r2, sd2, sh2, ..., out_n, out_t)``
+    when given, else the NumPy ``reference(s, e)`` per chunk."""
+    n = len(ctx.x)
+    if compiled is None:
+        parts = _run_chunks(reference, n)
+        return (np.concatenate([q[0] for q in parts], axis=0),
+                np.concatenate([q[1] for q in parts]))
+    out_n = np.empty((n, 3))  # noqa: NPY-empty -- every chunk writes its rows
+    out_t = np.empty(n)  # noqa: NPY-empty -- every chunk writes its rows
+    nrm = np.ascontiguousarray(normals, dtype=np.float64)
+    _run_chunks(lambda s, e: compiled(ctx.x, ctx.idx, nrm, arg, s, e, ctx.r2, ctx.sd2,
+                                      ctx.sh2, *extra, out_n, out_t), n)
+    return out_n, out_t
 
 
 def _eigen_pass(ctx: _Ctx, normals, tau, s: int, e: int, first: bool):
@@ -201,6 +219,16 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
     vnorm = np.zeros(n) if vn else None
     offset = np.zeros(n) if vn else None
     curv = np.zeros(n) if vn else None
+    if _kernels.ENABLED:
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        t0 = np.ascontiguousarray(tau, dtype=np.float64)
+        none1, none3 = np.zeros(0), np.zeros((0, 3))
+        _run_chunks(lambda s, e: _denoise_jit.inner_rows(
+            ctx.x, ctx.idx, nrm, t0, s, e, ctx.r2, ctx.sd2, ctx.sh2, ctx.lam, ctx.cos_n,
+            ctx.sn2, ctx.l1, propose, vn, energy, none3 if new_n is None else new_n,
+            none1 if new_t is None else new_t, none1 if vnorm is None else vnorm,
+            none1 if offset is None else offset, none1 if curv is None else curv), n)
+        return energy, new_n, new_t, (vnorm, offset, curv) if vn else None
     nt = np.ascontiguousarray(normals.T, dtype=WORK)
 
     def kernel(s, e):
@@ -310,6 +338,12 @@ def _smooth_curvature(ctx: _Ctx, normals: np.ndarray, curv: np.ndarray) -> np.nd
     """θ-weighted mean over N_g(p_i) of the curvatures c_j of the fits
     h ≈ a + cρ², each sign-aligned to n_i (c flips with the normal's sign)."""
     out = np.empty(len(curv))  # noqa: NPY-empty -- every chunk writes its rows
+    if _kernels.ENABLED:
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        c = np.ascontiguousarray(curv, dtype=np.float64)
+        _run_chunks(lambda s, e: _denoise_jit.curvature_rows(
+            ctx.x, ctx.idx, nrm, c, s, e, ctx.r2, ctx.sd2, out), len(curv))
+        return out
 
     def kernel(s, e):
         _, _, _, theta = _geometry(ctx, s, e)

@@ -1,0 +1,350 @@
+"""
+_denoise_jit.py
+---------------
+Compiled row kernels (numba) of :func:`pcprep.filters.denoise.denoise_l1_tv`:
+one inner pass (energy (4.5), τ step (4.14), normal step (4.10)-(4.12), normal
+variation (4.17) and the height fit), one pass of the n⁰ iteration (4.9), the
+selection among neighbour normals, and the smoothed curvature.
+
+Each kernel computes rows ``s:e`` of its pass, one point at a time, with the
+same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` (which
+runs when ``_kernels.ENABLED`` is False; the tests compare the two).  A point's
+neighbour terms are recomputed from the positions instead of being gathered
+into (rows, k) arrays, which is what the NumPy passes spend most of their time
+on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
+them on every core.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._denoise_kernels import GUARD, TAU_IRLS
+from ._kernels import HAVE_NUMBA, _jit
+
+if HAVE_NUMBA:
+
+    @_jit(inline="always")
+    def _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside):
+        """The neighbours of row i inside the radius, in column order: their
+        indices q, D = p_i − p_j, |D|² and θ; ``inside`` flags every column.
+        Returns their count.  Every term of the energy (4.5) and of its steps
+        carries θ or the radius mask, so the neighbours outside add exactly
+        zero and are left out; column 0 (the point itself, at distance 0)
+        stays first."""
+        inv_sd2 = -1.0 / sd2
+        m = 0
+        for j in range(idx.shape[1]):
+            p = idx[i, j]
+            d0 = x[i, 0] - x[p, 0]
+            d1 = x[i, 1] - x[p, 1]
+            dz = x[i, 2] - x[p, 2]
+            s = d0 * d0 + d1 * d1 + dz * dz
+            inside[j] = s <= r2
+            if not inside[j]:
+                continue
+            q[m] = p
+            d[m, 0] = d0
+            d[m, 1] = d1
+            d[m, 2] = dz
+            d2[m] = s
+            theta[m] = np.exp(s * inv_sd2)
+            m += 1
+        return m
+
+    @_jit()
+    def _scratch(k):
+        """Per-call work arrays of the row kernels."""
+        return (np.empty(k, np.int64), np.empty((k, 3)), np.empty(k), np.empty(k),
+                np.empty(k, np.bool_))
+
+    @_jit(inline="always")
+    def _eta1(res, psi, theta):
+        """η = ψθ/|h − τ| of one neighbour (θ where |h − τ| < GUARD)."""
+        a = abs(res)
+        if a < GUARD:
+            return theta
+        return psi * theta / a
+
+    @_jit(inline="always")
+    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps):
+        """IRLS weighted L1-median of the heights (4.14) from ``tau``."""
+        for _ in range(n_steps):
+            den = 0.0
+            num = 0.0
+            for j in range(k):
+                r = hgt[j] - tau
+                et = _eta1(r, np.exp(r * r * inv_sh2), theta[j])
+                den += et
+                num += et * hgt[j]
+            if den > 0:
+                tau = num / den
+        return tau
+
+    @_jit(inline="always")
+    def _eig_small(c00, c01, c02, c11, c12, c22, out, row):
+        """Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix
+        (the closed form of ``_denoise_kernels._smallest_eigvec``) into out[row]."""
+        q = (c00 + c11 + c22) / 3.0
+        p1 = c01 ** 2 + c02 ** 2 + c12 ** 2
+        p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
+        p = np.sqrt(p2 / 6.0)
+        ps = p if p > 0 else 1.0
+        b00, b11, b22 = (c00 - q) / ps, (c11 - q) / ps, (c22 - q) / ps
+        b01, b02, b12 = c01 / ps, c02 / ps, c12 / ps
+        det = (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+               + b02 * (b01 * b12 - b11 * b02))
+        phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
+        lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+        a00, a11, a22 = c00 - lam0, c11 - lam0, c22 - lam0
+        # the cross products of the rows of C − λI, the longest kept
+        best = -1.0
+        v0 = v1 = v2 = 0.0
+        for t in range(3):
+            if t == 0:    # r0 × r1
+                x0 = c01 * c12 - c02 * a11
+                x1 = c02 * c01 - a00 * c12
+                x2 = a00 * a11 - c01 * c01
+            elif t == 1:  # r0 × r2
+                x0 = c01 * a22 - c02 * c12
+                x1 = c02 * c02 - a00 * a22
+                x2 = a00 * c12 - c01 * c02
+            else:         # r1 × r2
+                x0 = a11 * a22 - c12 * c12
+                x1 = c12 * c02 - c01 * a22
+                x2 = c01 * c12 - a11 * c02
+            ln = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            if ln > best:
+                best, v0, v1, v2 = ln, x0, x1, x2
+        if best > 1e-300:
+            out[row, 0], out[row, 1], out[row, 2] = v0 / best, v1 / best, v2 / best
+        else:
+            out[row, 0], out[row, 1], out[row, 2] = 0.0, 0.0, 1.0
+
+    @_jit()
+    def inner_rows(x, idx, normals, tau, s, e, r2, sd2, sh2, lam, cos_n, sn2, l1,
+                   propose, want_vn, energy, new_n, new_t, vnorm, offset, curv):
+        """Rows s:e of ``_denoise_steps._inner_pass``: the energy of the state
+        (normals, τ); with ``propose`` the next state, with ``want_vn`` V_n and
+        the height fit (a, c)."""
+        k = idx.shape[1]
+        q, d, d2, theta, inside = _scratch(k)
+        hgt = np.empty(k)
+        res = np.empty(k)
+        psi = np.empty(k)
+        al = np.empty((k, 3))
+        w = np.empty(k)
+        inv_sh2 = -1.0 / sh2
+        inv_cn = 1.0 / (1.0 - cos_n)
+        inv_sn = -1.0 / (2.0 * sn2)
+        for i in range(s, e):
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
+            t_i = tau[i]
+            fid = 0.0
+            tv = 0.0
+            cnt = m - 1.0  # the point itself adds no TV term
+            for j in range(m):
+                h = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
+                hgt[j] = h
+                r = h - t_i
+                res[j] = r
+                p = np.exp(r * r * inv_sh2)
+                psi[j] = p
+                fid += abs(r) * p * theta[j]
+                c = q[j]
+                m0, m1, m2 = normals[c, 0], normals[c, 1], normals[c, 2]
+                dot = m0 * n0 + m1 * n1 + m2 * n2
+                if dot < 0:
+                    m0, m1, m2 = -m0, -m1, -m2
+                al[j, 0], al[j, 1], al[j, 2] = m0, m1, m2
+                if j == 0:
+                    w[j] = 0.0
+                    continue
+                u = (1.0 - abs(dot)) * inv_cn
+                wj = np.exp(-(u * u))
+                w[j] = wj
+                if l1:
+                    dist = abs(n0 - m0) + abs(n1 - m1) + abs(n2 - m2)
+                else:
+                    dist = np.sqrt((n0 - m0) ** 2 + (n1 - m1) ** 2 + (n2 - m2) ** 2)
+                tv += dist * wj
+            energy[i] = fid + lam * tv
+            if want_vn:
+                acc = 0.0
+                s0 = s1 = s2 = b0 = b1 = 0.0
+                for j in range(m):
+                    if j > 0:
+                        diff2 = ((n0 - al[j, 0]) ** 2 + (n1 - al[j, 1]) ** 2
+                                 + (n2 - al[j, 2]) ** 2)
+                        acc += np.exp(diff2 * inv_sn)
+                    et = _eta1(res[j], psi[j], theta[j])
+                    rho2 = max(d2[j] - hgt[j] * hgt[j], 0.0)
+                    s0 += et
+                    s1 += et * rho2
+                    s2 += et * rho2 * rho2
+                    b0 += et * hgt[j]
+                    b1 += et * rho2 * hgt[j]
+                vnorm[i] = acc / cnt if cnt > 0 else 1.0
+                det = s0 * s2 - s1 * s1
+                if det > 1e-9 * max(s0 * s2, 1e-300):
+                    offset[i] = (b0 * s2 - b1 * s1) / det
+                    curv[i] = (s0 * b1 - s1 * b0) / det
+                else:
+                    offset[i] = t_i
+                    curv[i] = 0.0
+            if not propose:
+                continue
+            # τ step (4.14), kept only if it does not raise the fidelity term
+            den = 0.0
+            num = 0.0
+            for j in range(m):
+                et = _eta1(res[j], psi[j], theta[j])
+                den += et
+                num += et * hgt[j]
+            t_new = num / den if den > 0 else t_i
+            if t_new != t_i:
+                f_new = 0.0
+                for j in range(m):
+                    r = hgt[j] - t_new
+                    p = np.exp(r * r * inv_sh2)
+                    f_new += abs(r) * p * theta[j]
+                    res[j] = r  # the state at the new τ, for the normal step
+                    psi[j] = p
+                if f_new > fid:  # back to τ_i
+                    t_new = t_i
+                    for j in range(m):
+                        r = hgt[j] - t_i
+                        res[j] = r
+                        psi[j] = np.exp(r * r * inv_sh2)
+            new_t[i] = t_new
+            # normal step (4.10)-(4.12) at the new τ
+            lip = 0.0
+            g0 = g1 = g2 = 0.0
+            for j in range(m):
+                et = _eta1(res[j], psi[j], theta[j])
+                lip += et * d2[j]
+                et *= res[j]
+                g0 += et * d[j, 0]
+                g1 += et * d[j, 1]
+                g2 += et * d[j, 2]
+            gamma = 1.0 / lip if lip > 0 else 0.0
+            h0, h1, h2 = n0 - gamma * g0, n1 - gamma * g1, n2 - gamma * g2
+            scale = gamma * lam * cnt
+            a0 = a1 = a2 = 0.0
+            for j in range(1, m):
+                thr = w[j] * scale
+                e0, e1, e2 = h0 - al[j, 0], h1 - al[j, 1], h2 - al[j, 2]
+                if l1:  # (4.12) per component: clip(d, ±t)
+                    e0 = min(max(e0, -thr), thr)
+                    e1 = min(max(e1, -thr), thr)
+                    e2 = min(max(e2, -thr), thr)
+                else:   # vector soft threshold: d·min(1, t/‖d‖)
+                    ln = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+                    fac = min(thr / max(ln, 1e-30), 1.0)
+                    e0, e1, e2 = e0 * fac, e1 * fac, e2 * fac
+                a0 += e0
+                a1 += e1
+                a2 += e2
+            c = max(cnt, 1.0)
+            v0, v1, v2 = h0 - a0 / c, h1 - a1 / c, h2 - a2 / c
+            nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            if nv > 1e-12:
+                new_n[i, 0], new_n[i, 1], new_n[i, 2] = v0 / nv, v1 / nv, v2 / nv
+            else:
+                new_n[i, 0], new_n[i, 1], new_n[i, 2] = n0, n1, n2
+
+    @_jit()
+    def eigen_rows(x, idx, normals, tau, s, e, r2, sd2, sh2, first, out_n, out_t):
+        """Rows s:e of one pass of (4.9) (``_denoise_steps._eigen_pass``)."""
+        k = idx.shape[1]
+        q, d, d2, theta, inside = _scratch(k)
+        hgt = np.empty(k)
+        om = np.empty(k)
+        inv_sh2 = -1.0 / sh2
+        for i in range(s, e):
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            if first:  # θ-weighted PCA about the weighted mean
+                ws = 0.0
+                for j in range(m):
+                    ws += theta[j]
+                m0 = m1 = m2 = 0.0
+                for j in range(m):
+                    om[j] = theta[j] / ws
+                    m0 += om[j] * d[j, 0]
+                    m1 += om[j] * d[j, 1]
+                    m2 += om[j] * d[j, 2]
+                t = 0.0
+            else:  # about c_i = p_i − τ_i n_i, ω = ψθ/|h − τ|
+                n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
+                for j in range(m):
+                    hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
+                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS)
+                for j in range(m):
+                    r = hgt[j] - t
+                    om[j] = _eta1(r, np.exp(r * r * inv_sh2), theta[j])
+                m0, m1, m2 = t * n0, t * n1, t * n2
+            c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+            for j in range(m):
+                q0, q1, q2 = d[j, 0] - m0, d[j, 1] - m1, d[j, 2] - m2
+                o = om[j]
+                c00 += o * q0 * q0
+                c01 += o * q0 * q1
+                c02 += o * q0 * q2
+                c11 += o * q1 * q1
+                c12 += o * q1 * q2
+                c22 += o * q2 * q2
+            _eig_small(c00, c01, c02, c11, c12, c22, out_n, i)
+            out_t[i] = t
+
+    @_jit()
+    def select_rows(x, idx, normals, cols, s, e, r2, sd2, sh2, out_n, out_t):
+        """Rows s:e of ``_denoise_steps._select_candidates``: of the own normal
+        and those of the neighbours ``cols`` (inside the radius), the one of
+        lowest Welsch loss Σ θ(1 − ψ), with τ by (4.14) from 0."""
+        k = idx.shape[1]
+        q, d, d2, theta, inside = _scratch(k)
+        hgt = np.empty(k)
+        inv_sh2 = -1.0 / sh2
+        for i in range(s, e):
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            best = np.inf
+            bq = i
+            bt = 0.0
+            for c in range(len(cols) + 1):
+                if c == 0:
+                    p = i
+                elif inside[cols[c - 1]]:
+                    p = idx[i, cols[c - 1]]
+                else:
+                    continue
+                n0, n1, n2 = normals[p, 0], normals[p, 1], normals[p, 2]
+                for j in range(m):
+                    hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
+                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS)
+                loss = 0.0
+                for j in range(m):
+                    r = hgt[j] - t
+                    loss += (1.0 - np.exp(r * r * inv_sh2)) * theta[j]
+                if loss < best:
+                    best, bq, bt = loss, p, t
+            out_n[i, 0], out_n[i, 1], out_n[i, 2] = (normals[bq, 0], normals[bq, 1],
+                                                     normals[bq, 2])
+            out_t[i] = bt
+
+    @_jit()
+    def curvature_rows(x, idx, normals, curv, s, e, r2, sd2, out):
+        """Rows s:e of ``_denoise_steps._smooth_curvature``: the θ-weighted mean
+        of the neighbours' curvatures, each signed to agree with n_i."""
+        q, d, d2, theta, inside = _scratch(idx.shape[1])
+        for i in range(s, e):
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            num = 0.0
+            den = 0.0
+            for j in range(m):
+                c = q[j]
+                dot = (normals[i, 0] * normals[c, 0] + normals[i, 1] * normals[c, 1]
+                       + normals[i, 2] * normals[c, 2])
+                num += theta[j] * (-curv[c] if dot < 0 else curv[c])
+                den += theta[j]
+            out[i] = num / max(den, 1e-300)
