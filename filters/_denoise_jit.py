@@ -4,11 +4,12 @@ _denoise_jit.py
 Compiled row kernels (numba) of :func:`pcprep.filters.denoise.denoise_l1_tv`:
 one inner pass (energy (4.5), τ step (4.14), normal step (4.10)-(4.12), normal
 variation (4.17) and the height fit), one pass of the n⁰ iteration (4.9), the
-selection among neighbour normals, and the smoothed curvature.
+selection among neighbour normals, the smoothed curvature and the final
+sphere projection.
 
 Each kernel computes rows ``s:e`` of its pass, one point at a time, with the
-same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` (which
-runs when ``_kernels.ENABLED`` is False; the tests compare the two).  A point's
+same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` and
+``_denoise_project.py`` (which runs when ``_kernels.ENABLED`` is False; the tests compare the two).  A point's
 neighbour terms are recomputed from the positions instead of being gathered
 into (rows, k) arrays, which is what the NumPy passes spend most of their time
 on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
@@ -348,3 +349,59 @@ if HAVE_NUMBA:
                 num += theta[j] * (-curv[c] if dot < 0 else curv[c])
                 den += theta[j]
             out[i] = num / max(den, 1e-300)
+
+    @_jit()
+    def sphere_rows(x, idx, fit_n, s, e, r2, sd2, cos_n, n_steps, off, ok):
+        """Rows s:e of ``_denoise_project._sphere_project``: the weighted
+        algebraic sphere fit about p_i and the Newton steps onto it."""
+        q, d, d2, theta, inside = _scratch(idx.shape[1])
+        inv_cn = 1.0 / (1.0 - cos_n)
+        for i in range(s, e):
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            r0, r1, r2_ = fit_n[i, 0], fit_n[i, 1], fit_n[i, 2]
+            s0 = qq = qn = 0.0
+            mq0 = mq1 = mq2 = mn0 = mn1 = mn2 = 0.0
+            for j in range(m):
+                c = q[j]
+                b0, b1, b2 = fit_n[c, 0], fit_n[c, 1], fit_n[c, 2]
+                dot = b0 * r0 + b1 * r1 + b2 * r2_
+                if dot < 0:
+                    b0, b1, b2 = -b0, -b1, -b2
+                u = (1.0 - abs(dot)) * inv_cn
+                w = np.exp(-(u * u)) * theta[j]
+                p0, p1, p2 = -d[j, 0], -d[j, 1], -d[j, 2]  # p_j − p_i
+                s0 += w
+                mq0 += w * p0
+                mq1 += w * p1
+                mq2 += w * p2
+                mn0 += w * b0
+                mn1 += w * b1
+                mn2 += w * b2
+                qq += w * d2[j]
+                qn += w * (p0 * b0 + p1 * b1 + p2 * b2)
+            good = s0 > 0
+            inv = 1.0 / s0 if good else 1.0
+            mq0, mq1, mq2 = mq0 * inv, mq1 * inv, mq2 * inv
+            mn0, mn1, mn2 = mn0 * inv, mn1 * inv, mn2 * inv
+            qq *= inv
+            qn *= inv
+            den = qq - (mq0 * mq0 + mq1 * mq1 + mq2 * mq2)
+            if den <= 1e-9 * max(qq, 1e-300):
+                u4 = 0.0
+            else:
+                u4 = 0.5 * (qn - (mq0 * mn0 + mq1 * mn1 + mq2 * mn2)) / den
+            u0_, u1_, u2_ = mn0 - 2.0 * u4 * mq0, mn1 - 2.0 * u4 * mq1, mn2 - 2.0 * u4 * mq2
+            c0 = -(u0_ * mq0 + u1_ * mq1 + u2_ * mq2) - u4 * qq
+            x0 = x1 = x2 = 0.0
+            for _ in range(n_steps):  # Newton along ∇s
+                g0, g1, g2 = u0_ + 2.0 * u4 * x0, u1_ + 2.0 * u4 * x1, u2_ + 2.0 * u4 * x2
+                f = c0 + (u0_ * x0 + u1_ * x1 + u2_ * x2) + u4 * (x0 * x0 + x1 * x1 + x2 * x2)
+                gg = g0 * g0 + g1 * g1 + g2 * g2
+                st = f / gg if gg > 1e-24 else 0.0
+                x0, x1, x2 = x0 - st * g0, x1 - st * g1, x2 - st * g2
+            good = good and np.isfinite(x0) and np.isfinite(x1) and np.isfinite(x2)
+            ok[i] = good
+            if good:
+                off[i, 0], off[i, 1], off[i, 2] = x0, x1, x2
+            else:
+                off[i, 0], off[i, 1], off[i, 2] = 0.0, 0.0, 0.0

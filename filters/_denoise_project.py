@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _denoise_jit, _kernels
 from ._denoise_kernels import (WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
                                _smallest_eigvec)
 
@@ -17,18 +18,18 @@ from ._denoise_kernels import (WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks
 PROJ_STEPS = 3
 
 
-def _pca_normals(ctx: _Ctx, k: int) -> np.ndarray:
-    """Plain (unweighted) PCA normals over the first ``k`` neighbours of the rows."""
-    out = np.empty((len(ctx.x), 3))  # noqa: NPY-empty -- every chunk writes its rows
+def _pca_normals(ctx: _Ctx, k: int, rows: np.ndarray) -> np.ndarray:
+    """Plain (unweighted) PCA normals of ``rows`` over their first ``k`` neighbours."""
+    out = np.empty((len(rows), 3))  # noqa: NPY-empty -- every chunk writes its rows
 
     def kernel(s, e):
-        nb = ctx.x[ctx.idx[s:e, :k]]
+        nb = ctx.x[ctx.idx[rows[s:e], :k]]
         dc = nb - nb.mean(axis=1, keepdims=True)
         cov = [np.einsum("ck,ck->c", dc[:, :, a], dc[:, :, b])
                for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
         out[s:e] = _smallest_eigvec(*cov)
 
-    _run_chunks(kernel, len(ctx.x))
+    _run_chunks(kernel, len(rows))
     return out
 
 
@@ -47,6 +48,11 @@ def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
     n = len(ctx.x)
     off = np.zeros((n, 3))
     ok = np.zeros(n, dtype=bool)
+    if _kernels.ENABLED:
+        fn = np.ascontiguousarray(fit_n, dtype=np.float64)
+        _run_chunks(lambda s, e: _denoise_jit.sphere_rows(
+            ctx.x, ctx.idx, fn, s, e, ctx.r2, ctx.sd2, ctx.cos_n, PROJ_STEPS, off, ok), n)
+        return off, ok
     ft = np.ascontiguousarray(fit_n.T, dtype=WORK)
 
     def kernel(s, e):

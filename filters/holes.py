@@ -214,10 +214,10 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
     nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
     reach = np.empty(n)  # noqa: NPY-empty -- every entry written below
     for m in scale_moments(points, ks, tree=tree):
-        s, e = m.start, m.stop
-        nn1[s:e] = m.dist[:, 1]
-        reach[s:e] = m.dist[:, -1]
-        near[s:e] = m.idx[:, :ks[0]]
+        at = m.rows
+        nn1[at] = m.dist[:, 1]
+        reach[at] = m.dist[:, -1]
+        near[at] = m.idx[:, :ks[0]]
         lam, mean = m.eigenvalues, m.mean
         l2s = np.maximum(lam[..., 2], 1e-300)
         shift_n = np.einsum("csd,csd->cs", mean, m.normal)
@@ -228,9 +228,9 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
                  else np.sqrt(np.einsum("csd,csd->cs", mean, mean)) / h)
         f = np.stack([np.abs(lam[..., 2] - 2.0 * lam[..., 1]) / l2s,
                       kf[None, :] / (np.pi * r * r), shift], axis=-1)
-        out[s:e] = f.reshape(e - s, -1)
-        extent[s:e] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
-        variation[s:e] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
+        out[at] = f.reshape(len(at), -1)
+        extent[at] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
+        variation[at] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
     out[:, 1::3] *= h * h                                       # k h² / (π r²)
     return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,
                         near=near, close_fraction=close_fraction(nn1),

@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components
 from . import sparse
 from ._params import Param
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
-from .neighbors import CHUNK, build_tree, centered, knn
+from .neighbors import CHUNK, build_tree, centered, knn, leaf_order
 
 #: floor of the robust feature scale, as a fraction of the column's std
 _MAD_FLOOR = 0.3
@@ -112,8 +112,8 @@ class ScaleMoments:
 
     Attributes
     ----------
-    start, stop : int
-        The chunk is the points ``start:stop`` (c of them).
+    rows : (c,) int
+        The points of the chunk.
     dist : (c, k_max) float
         Distances to the k_max nearest neighbours, sorted (column 0 is the
         point itself).
@@ -129,8 +129,7 @@ class ScaleMoments:
         Unit eigenvector of λ0 at each scale (sign arbitrary).
     """
 
-    start: int
-    stop: int
+    rows: np.ndarray
     dist: np.ndarray
     idx: np.ndarray
     offsets: np.ndarray
@@ -164,7 +163,9 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
     Yields
     ------
     ScaleMoments
-        One per chunk of ``MOMENT_CHUNK`` points, in order.
+        One per chunk of ``MOMENT_CHUNK`` points; the chunks follow the tree's
+        leaf order (``neighbors.leaf_order``), which makes the query several
+        times faster than the input order, and together cover every point once.
     """
     n = len(points)
     ks = np.asarray(ks, dtype=np.int64)
@@ -174,14 +175,16 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
     kf = ks.astype(np.float64)
     corr = kf / np.maximum(kf - 1.0, 1.0)                       # 1/(k−1) of (7.1)
     iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
+    order = leaf_order(tree)
     for s in range(0, n, MOMENT_CHUNK):
-        e = min(n, s + MOMENT_CHUNK)
-        dist, idx = knn(points, k_max, tree=tree, query=points[s:e])
+        rows = order[s:s + MOMENT_CHUNK]
+        c = len(rows)
+        dist, idx = knn(points, k_max, tree=tree, query=points[rows])
         x = points[idx]                                         # (c, k, 3)
-        x -= points[s:e, None, :]
+        x -= points[rows, None, :]
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
         mean = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2) / kf  # (3, c, S)
-        cov = np.empty((e - s, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
+        cov = np.empty((c, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
         for i, j in zip(*iu):
             s2 = np.cumsum(np.add.reduceat(xt[i] * xt[j], starts, axis=1), axis=1)
             cij = (s2 / kf - mean[i] * mean[j]) * corr
@@ -190,7 +193,7 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         if weighted:
             cov = _weighted_covariances(x, ks, np.moveaxis(mean, 0, -1), corr)
         lam, nrm = sym3_eig(cov)                                # (c, S, 3)
-        yield ScaleMoments(s, e, dist, idx, x, np.moveaxis(mean, 0, -1), lam, nrm)
+        yield ScaleMoments(rows, dist, idx, x, np.moveaxis(mean, 0, -1), lam, nrm)
 
 
 def _weighted_covariances(x: np.ndarray, ks: np.ndarray, mean: np.ndarray,

@@ -207,18 +207,18 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     rows = np.empty(n) if own_h else None  # noqa: NPY-empty -- every entry written below
     j_nrm = int(np.argmin(np.abs(ks - _NORMAL_K)))
     for m in scale_moments(points, ks, tree=tree, weighted=weighted):
-        s, e = m.start, m.stop
+        at = m.rows
         if own_h:
-            rows[s:e] = m.dist[:, 1:SPACING_K + 1].mean(axis=1)
-        nn1[s:e] = m.dist[:, 1]
-        reach[s:e] = m.dist[:, -1]
+            rows[at] = m.dist[:, 1:SPACING_K + 1].mean(axis=1)
+        nn1[at] = m.dist[:, 1]
+        reach[at] = m.dist[:, -1]
         lam = m.eigenvalues
         l0, l2s = lam[..., 0], np.maximum(lam[..., 2], 1e-300)
         shift_n = np.einsum("csd,csd->cs", m.mean, m.normal)   # (p̄ − p_i)·n
         f = np.stack([l0, l0 / l2s, l0 / np.maximum(lam.sum(-1), 1e-300),
                       np.abs(shift_n)], axis=-1)
-        out[s:e] = f.reshape(e - s, -1)
-        normals[s:e] = m.normal[:, j_nrm]
+        out[at] = f.reshape(len(at), -1)
+        normals[at] = m.normal[:, j_nrm]
     if own_h:
         h = spacing_from_rows(rows)
         if not np.isfinite(h) or h <= 0.0:

@@ -5,6 +5,7 @@ import pytest
 
 from pcprep import InvalidParameterError, PointCloudError
 from pcprep.baselines.datasets import make_shape
+from pcprep.filters import multiscale
 from pcprep.filters.multiscale import (ScoreConfig, chain_labels, code_lengths,
                                        otsu_threshold, prepare_cloud, scale_moments,
                                        scale_sizes, standardise, sym3_eig)
@@ -36,14 +37,18 @@ def test_sym3_eig_matches_eigh(rng):
                                atol=1e-6)
 
 
-def test_scale_moments_equal_direct_pca():
+def test_scale_moments_equal_direct_pca(monkeypatch):
     cube = make_shape("cube", n=3000, seed=0)
     pts, _ = centered(cube.points)
     ks = scale_sizes(8, 40, 10)
+    monkeypatch.setattr(multiscale, "MOMENT_CHUNK", 700)  # several chunks
     chunks = list(scale_moments(pts, ks))
-    assert chunks[0].start == 0 and chunks[-1].stop == len(pts)
-    lam = np.concatenate([c.eigenvalues for c in chunks])
-    mean = np.concatenate([c.mean for c in chunks])
+    rows = np.concatenate([c.rows for c in chunks])
+    assert len(chunks) == 5 and np.array_equal(np.sort(rows), np.arange(len(pts)))
+    lam = np.empty((len(pts), len(ks), 3))
+    mean = np.empty((len(pts), len(ks), 3))
+    for c in chunks:
+        lam[c.rows], mean[c.rows] = c.eigenvalues, c.mean
     _, idx = knn(pts, int(ks[-1]))
     for s in (0, 4, len(ks) - 1):
         k = int(ks[s])

@@ -148,3 +148,19 @@ def test_h_relative_quantities_are_scale_and_motion_invariant(scale):
     assert np.allclose(a.surface_variation, b.surface_variation, rtol=1e-4, atol=1e-9)
     assert np.allclose(a.border, b.border, rtol=1e-4, atol=1e-6)
     assert np.allclose(np.abs(np.einsum("ij,ij->i", a.normals @ r.T, b.normals)), 1, atol=1e-6)
+
+
+def test_knn_in_leaf_order_equals_one_query_in_input_order(monkeypatch):
+    """A large cloud is queried in the tree's leaf order, slice by slice; the
+    answer is row for row the one of a single query in input order."""
+    from pcprep.filters import neighbors
+
+    p = sphere_points(3000, seed=11)[np.random.default_rng(2).permutation(3000)]
+    tree = neighbors.build_tree(p)
+    want_d, want_i = tree.query(p, k=9)
+    monkeypatch.setattr(neighbors, "CHUNK", 200)  # leaf-order path, 4 slices
+    d, i = knn(p, 9, tree=tree)
+    np.testing.assert_array_equal(i, want_i)
+    np.testing.assert_array_equal(d, want_d)
+    d, i = knn(p, 8, tree=tree, include_self=False)
+    np.testing.assert_array_equal(i, want_i[:, 1:])
