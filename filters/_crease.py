@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .multiscale import MOMENT_CHUNK, sym3_eig
-from .neighbors import build_tree, knn
+from .neighbors import build_tree, knn, leaf_order
 
 #: neighbours of the crease-line estimate on clean data, and its growth per unit σ̂ (h)
 _LOC_K = 16
@@ -92,8 +92,8 @@ def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
         Crease distance / h for ``mask`` points, ``inf`` elsewhere.
     """
     out = np.full(len(points), np.inf)
-    sel = np.flatnonzero(mask)
     tree = build_tree(points) if tree is None else tree
+    sel = leaf_order(tree, np.flatnonzero(mask))
     k = min(k, len(points))
     w_all = ridge * ridge
     eye = np.eye(3)
@@ -197,8 +197,8 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
     n = len(points)
     dist = np.full(n, np.inf)
     rms = np.full(n, np.inf)
-    sel = np.flatnonzero(mask)
     tree = build_tree(points) if tree is None else tree
+    sel = leaf_order(tree, np.flatnonzero(mask))
     k = min(k, n)
     sin_min = np.sin(np.radians(min_angle))
     for s in range(0, len(sel), MOMENT_CHUNK):
@@ -249,8 +249,8 @@ def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
         Degrees; NaN for points not in ``mask``.
     """
     out = np.full(len(points), np.nan)
-    sel = np.flatnonzero(mask)
     tree = build_tree(points) if tree is None else tree
+    sel = leaf_order(tree, np.flatnonzero(mask))
     k = min(k, len(points))
     for s in range(0, len(sel), MOMENT_CHUNK):
         rows = sel[s:s + MOMENT_CHUNK]

@@ -95,10 +95,18 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
     return np.ascontiguousarray(dist), np.ascontiguousarray(idx.astype(np.int64, copy=False))
 
 
-def leaf_order(tree: cKDTree) -> np.ndarray:
-    """The cloud's rows in the order of the k-d tree's leaves (spatially
-    coherent): the order in which to query a cloud against its own tree."""
-    return np.asarray(tree.indices, dtype=np.int64)
+def leaf_order(tree: cKDTree, rows: np.ndarray | None = None) -> np.ndarray:
+    """The cloud's rows (or the given ``rows``) in the order of the k-d tree's
+    leaves: the order in which to query a cloud against its own tree, since
+    consecutive queries then walk the same nodes (on a scattered input order a
+    1M-point query runs several times faster so)."""
+    order = np.asarray(tree.indices, dtype=np.int64)
+    if rows is None:
+        return order
+    rank = np.empty(len(order), dtype=np.int64)  # noqa: NPY-empty -- a permutation fills it
+    rank[order] = np.arange(len(order))
+    rows = np.asarray(rows, dtype=np.int64)
+    return rows[np.argsort(rank[rows], kind="stable")]
 
 
 #: a point whose mean distance to its SPACING_K nearest neighbours exceeds this

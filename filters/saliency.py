@@ -23,8 +23,8 @@ from . import _kernels, progress
 from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from .neighbors import SPACING_K, build_tree, centered, orient_normals_mst, spacing_from_rows, \
-    tile_exact
+from .neighbors import (SPACING_K, build_tree, centered, leaf_order, orient_normals_mst,
+                        spacing_from_rows, tile_exact)
 
 log = logging.getLogger("pcprep")
 
@@ -158,14 +158,15 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     dist = np.zeros((n, k), dtype=np.float32)
     kth = np.zeros(n)
     rows = np.zeros(n)
+    order = leaf_order(tree)
     for s in range(0, n, 4 * CHUNK):
-        e = min(n, s + 4 * CHUNK)
-        d, j = tree.query(points[s:e], k=k, workers=-1)
-        d, j = d.reshape(e - s, k), j.reshape(e - s, k)
-        idx[s:e] = j
-        dist[s:e] = d
-        kth[s:e] = d[:, -1]
-        rows[s:e] = d[:, 1:SPACING_K + 1].mean(axis=1)
+        at = order[s:s + 4 * CHUNK]
+        d, j = tree.query(points[at], k=k, workers=-1)
+        d, j = d.reshape(len(at), k), j.reshape(len(at), k)
+        idx[at] = j
+        dist[at] = d
+        kth[at] = d[:, -1]
+        rows[at] = d[:, 1:SPACING_K + 1].mean(axis=1)
     if tile is not None:
         h = tile[0]
         r = np.float32(radius_h * h * (1.0 + 1e-6))
