@@ -4,8 +4,9 @@ _kernels.py
 Compiled kernels (numba): the per-signal solvers of the sparse core (Lasso by
 LARS and orthogonal matching pursuit, one signal at a time), the per-problem
 Lasso of ``lasso_batched``, the k-NN graph orientation of
-``neighbors.orient_normals_mst`` (Kruskal with a signed union-find) and the
-per-neighbourhood geometry of the saliency filter.  Each has a NumPy
+``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
+per-neighbourhood geometry of the saliency filter and the multi-scale moments
+of the feature and hole detectors (``multiscale.scale_moments``).  Each has a NumPy
 reference that runs when ``ENABLED`` is False; the tests compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
@@ -807,3 +808,92 @@ if HAVE_NUMBA:
                         kb = k
                 atoms[i, m] = idx[i, kb]
         return frames, gauss, total, atoms
+
+    @_jit(inline="always")
+    def _sym3_eig_into(a00, a01, a02, a11, a12, a22, lam, nrm, c, s):
+        """λ0 ≤ λ1 ≤ λ2 (clipped at 0) and the unit eigenvector of λ0 of one
+        symmetric 3×3 matrix, written to lam[c, s] and nrm[c, s]; the closed
+        form of ``multiscale.sym3_eig``, step for step."""
+        q = (a00 + a11 + a22) / 3.0
+        p1 = a01 * a01 + a02 * a02 + a12 * a12
+        b00, b11, b22 = a00 - q, a11 - q, a22 - q
+        p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+        p = np.sqrt(p2 / 6.0)
+        safe = p if p > 0 else 1.0
+        det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+               + a02 * (a01 * a12 - b11 * a02))
+        r = min(max(det / (2.0 * safe ** 3), -1.0), 1.0)
+        phi = np.arccos(r) / 3.0
+        l2 = q + 2.0 * p * np.cos(phi)
+        l0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+        l1 = 3.0 * q - l2 - l0
+        x0, x1, x2 = max(l0, 0.0), max(l1, 0.0), max(l2, 0.0)
+        if x0 > x1:
+            x0, x1 = x1, x0
+        if x1 > x2:
+            x1, x2 = x2, x1
+        if x0 > x1:
+            x0, x1 = x1, x0
+        lam[c, s, 0], lam[c, s, 1], lam[c, s, 2] = x0, x1, x2
+        m00, m11, m22 = a00 - l0, a11 - l0, a22 - l0
+        best = -1.0
+        v0 = v1 = v2 = 0.0
+        for t in range(3):
+            if t == 0:    # r0 × r1
+                y0 = a01 * a12 - a02 * m11
+                y1 = a02 * a01 - m00 * a12
+                y2 = m00 * m11 - a01 * a01
+            elif t == 1:  # r0 × r2
+                y0 = a01 * m22 - a02 * a12
+                y1 = a02 * a02 - m00 * m22
+                y2 = m00 * a12 - a01 * a02
+            else:         # r1 × r2
+                y0 = m11 * m22 - a12 * a12
+                y1 = a12 * a02 - a01 * m22
+                y2 = a01 * a12 - m11 * a02
+            cn = y0 * y0 + y1 * y1 + y2 * y2
+            if cn > best:
+                best, v0, v1, v2 = cn, y0, y1, y2
+        vn = np.sqrt(best)
+        if vn > 0:
+            nrm[c, s, 0], nrm[c, s, 1], nrm[c, s, 2] = v0 / vn, v1 / vn, v2 / vn
+        else:
+            nrm[c, s, 0], nrm[c, s, 1], nrm[c, s, 2] = 0.0, 0.0, 1.0
+
+    @_jit()
+    def scale_moments(x, ks, corr):
+        """Centroid, covariance eigenvalues and normal of every row's first
+        ks[s] neighbours, for every scale s, from the offsets x (c, k, 3):
+        running sums of x and x xᵀ along the sorted neighbour list
+        (``multiscale.scale_moments``)."""
+        c_n, k_n = x.shape[0], x.shape[1]
+        n_s = len(ks)
+        mean = np.empty((c_n, n_s, 3))
+        lam = np.empty((c_n, n_s, 3))
+        nrm = np.empty((c_n, n_s, 3))
+        for c in range(c_n):
+            s0 = s1 = s2 = 0.0
+            q00 = q01 = q02 = q11 = q12 = q22 = 0.0
+            s = 0
+            for j in range(k_n):
+                y0, y1, y2 = x[c, j, 0], x[c, j, 1], x[c, j, 2]
+                s0 += y0
+                s1 += y1
+                s2 += y2
+                q00 += y0 * y0
+                q01 += y0 * y1
+                q02 += y0 * y2
+                q11 += y1 * y1
+                q12 += y1 * y2
+                q22 += y2 * y2
+                if s < n_s and j + 1 == ks[s]:
+                    kf = float(ks[s])
+                    m0, m1, m2 = s0 / kf, s1 / kf, s2 / kf
+                    mean[c, s, 0], mean[c, s, 1], mean[c, s, 2] = m0, m1, m2
+                    f = corr[s]
+                    _sym3_eig_into((q00 / kf - m0 * m0) * f, (q01 / kf - m0 * m1) * f,
+                                   (q02 / kf - m0 * m2) * f, (q11 / kf - m1 * m1) * f,
+                                   (q12 / kf - m1 * m2) * f, (q22 / kf - m2 * m2) * f,
+                                   lam, nrm, c, s)
+                    s += 1
+        return mean, lam, nrm

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from . import sparse
+from . import _kernels, sparse
 from ._params import Param
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
 from .neighbors import CHUNK, build_tree, centered, knn, leaf_order
@@ -182,6 +182,10 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         dist, idx = knn(points, k_max, tree=tree, query=points[rows])
         x = points[idx]                                         # (c, k, 3)
         x -= points[rows, None, :]
+        if _kernels.ENABLED and not weighted:
+            mean, lam, nrm = _kernels.scale_moments(x, ks, corr)
+            yield ScaleMoments(rows, dist, idx, x, mean, lam, nrm)
+            continue
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
         mean = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2) / kf  # (3, c, S)
         cov = np.empty((c, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
