@@ -24,6 +24,7 @@ from ._denoise_kernels import GUARD, TAU_IRLS
 from ._kernels import HAVE_NUMBA, _jit
 
 if HAVE_NUMBA:
+    from ._kernels import _sym3_eig_into  # the closed form shared with the moments
 
     @_jit(inline="always")
     def _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside):
@@ -81,46 +82,6 @@ if HAVE_NUMBA:
             if den > 0:
                 tau = num / den
         return tau
-
-    @_jit(inline="always")
-    def _eig_small(c00, c01, c02, c11, c12, c22, out, row):
-        """Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix
-        (the closed form of ``_denoise_kernels._smallest_eigvec``) into out[row]."""
-        q = (c00 + c11 + c22) / 3.0
-        p1 = c01 ** 2 + c02 ** 2 + c12 ** 2
-        p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
-        p = np.sqrt(p2 / 6.0)
-        ps = p if p > 0 else 1.0
-        b00, b11, b22 = (c00 - q) / ps, (c11 - q) / ps, (c22 - q) / ps
-        b01, b02, b12 = c01 / ps, c02 / ps, c12 / ps
-        det = (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
-               + b02 * (b01 * b12 - b11 * b02))
-        phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
-        lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-        a00, a11, a22 = c00 - lam0, c11 - lam0, c22 - lam0
-        # the cross products of the rows of C − λI, the longest kept
-        best = -1.0
-        v0 = v1 = v2 = 0.0
-        for t in range(3):
-            if t == 0:    # r0 × r1
-                x0 = c01 * c12 - c02 * a11
-                x1 = c02 * c01 - a00 * c12
-                x2 = a00 * a11 - c01 * c01
-            elif t == 1:  # r0 × r2
-                x0 = c01 * a22 - c02 * c12
-                x1 = c02 * c02 - a00 * a22
-                x2 = a00 * c12 - c01 * c02
-            else:         # r1 × r2
-                x0 = a11 * a22 - c12 * c12
-                x1 = c12 * c02 - c01 * a22
-                x2 = c01 * c12 - a11 * c02
-            ln = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            if ln > best:
-                best, v0, v1, v2 = ln, x0, x1, x2
-        if best > 1e-300:
-            out[row, 0], out[row, 1], out[row, 2] = v0 / best, v1 / best, v2 / best
-        else:
-            out[row, 0], out[row, 1], out[row, 2] = 0.0, 0.0, 1.0
 
     @_jit()
     def inner_rows(x, idx, normals, tau, s, e, r2, sd2, sh2, lam, cos_n, sn2, l1,
@@ -262,6 +223,8 @@ if HAVE_NUMBA:
         q, d, d2, theta, inside = _scratch(k)
         hgt = np.empty(k)
         om = np.empty(k)
+        lam = np.empty((1, 1, 3))
+        vec = np.empty((1, 1, 3))
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
@@ -295,7 +258,8 @@ if HAVE_NUMBA:
                 c11 += o * q1 * q1
                 c12 += o * q1 * q2
                 c22 += o * q2 * q2
-            _eig_small(c00, c01, c02, c11, c12, c22, out_n, i)
+            _sym3_eig_into(c00, c01, c02, c11, c12, c22, lam, vec, 0, 0)
+            out_n[i, 0], out_n[i, 1], out_n[i, 2] = vec[0, 0, 0], vec[0, 0, 1], vec[0, 0, 2]
             out_t[i] = t
 
     @_jit()
