@@ -612,7 +612,8 @@ def content_keys(X: np.ndarray, seed: int | None = 0, decimals: int = 6) -> np.n
     """
     X = np.asarray(X, dtype=np.float64)
     keys = np.empty(len(X), dtype=np.uint64)  # noqa: NPY-empty -- every entry written below
-    start = np.uint64(0x9E3779B97F4A7C15) * np.uint64((seed or 0) + 1)
+    with np.errstate(over="ignore"):  # the products wrap modulo 2**64 on purpose
+        start = np.uint64(0x9E3779B97F4A7C15) * np.uint64((seed or 0) + 1)
     for s0 in range(0, len(X), CHUNK):
         q = np.round(X[s0:s0 + CHUNK] * 10.0 ** decimals)
         q = np.clip(q, -2.0**62, 2.0**62).astype(np.int64).view(np.uint64)
