@@ -9,10 +9,10 @@ sphere projection.
 
 Each kernel computes rows ``s:e`` of its pass, one point at a time, with the
 same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` and
-``_denoise_project.py`` (which runs when ``_kernels.ENABLED`` is False; the tests compare the two).  A point's
-neighbour terms are recomputed from the positions instead of being gathered
-into (rows, k) arrays, which is what the NumPy passes spend most of their time
-on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
+``_denoise_project.py`` (which runs when ``_kernels.ENABLED`` is False; the
+tests compare the two).  A point's neighbour terms are recomputed from the
+positions instead of being gathered into (rows, k) arrays, which is what the
+NumPy passes spend most of their time on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
 them on every core.
 """
 

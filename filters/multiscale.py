@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components
 from . import _kernels, sparse
 from ._params import Param
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
-from .neighbors import CHUNK, build_tree, centered, knn, leaf_order
+from .neighbors import CHUNK, build_tree, centered, knn, leaf_chunks
 
 #: floor of the robust feature scale, as a fraction of the column's std
 _MAD_FLOOR = 0.3
@@ -167,7 +167,6 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         leaf order (``neighbors.leaf_order``), which makes the query several
         times faster than the input order, and together cover every point once.
     """
-    n = len(points)
     ks = np.asarray(ks, dtype=np.int64)
     tree = build_tree(points) if tree is None else tree
     k_max = int(ks[-1])
@@ -175,9 +174,7 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
     kf = ks.astype(np.float64)
     corr = kf / np.maximum(kf - 1.0, 1.0)                       # 1/(k−1) of (7.1)
     iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
-    order = leaf_order(tree)
-    for s in range(0, n, MOMENT_CHUNK):
-        rows = order[s:s + MOMENT_CHUNK]
+    for rows in leaf_chunks(tree, MOMENT_CHUNK):
         c = len(rows)
         dist, idx = knn(points, k_max, tree=tree, query=points[rows])
         x = points[idx]                                         # (c, k, 3)

@@ -64,30 +64,22 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
         raise PointCloudError(f"knn: needs at least {kk} points for k={k}, got {n}")
     tree = build_tree(points) if tree is None else tree
     q = points if query is None else query
-    if query is None and n > CHUNK:
-        # the cloud queried in the tree's leaf order: consecutive queries walk
-        # the same nodes, which makes a large query several times faster than
-        # in a scattered input order (the answers do not depend on the order)
-        dist = np.empty((n, kk))
-        idx = np.empty((n, kk), dtype=np.int64)
-        order = leaf_order(tree)
-        with progress.step(f"{k}-NN query", n) as advance:
-            for s in range(0, n, 4 * CHUNK):
-                rows = order[s:s + 4 * CHUNK]
-                d, i = tree.query(points[rows], k=kk, workers=-1)
-                dist[rows], idx[rows] = d.reshape(len(rows), kk), i.reshape(len(rows), kk)
-                advance(len(rows))
-    elif len(q) <= 4 * CHUNK:
-        dist, idx = tree.query(q, k=kk, workers=-1)
-    else:  # in slices, so a long query reports its progress (same answers)
+    if query is None and n > CHUNK or len(q) > 4 * CHUNK:
+        # in slices, so a long query reports its progress; the cloud itself in
+        # the tree's leaf order (same answers, several times faster than a
+        # scattered input order)
         dist = np.empty((len(q), kk))
         idx = np.empty((len(q), kk), dtype=np.int64)
+        step = 4 * CHUNK
+        slices = (leaf_chunks(tree, step) if query is None else
+                  (slice(s, s + step) for s in range(0, len(q), step)))
         with progress.step(f"{k}-NN query", len(q)) as advance:
-            for s in range(0, len(q), 4 * CHUNK):
-                e = min(len(q), s + 4 * CHUNK)
-                d, i = tree.query(q[s:e], k=kk, workers=-1)
-                dist[s:e], idx[s:e] = d.reshape(e - s, kk), i.reshape(e - s, kk)
-                advance(e - s)
+            for rows in slices:
+                d, i = tree.query(q[rows], k=kk, workers=-1)
+                dist[rows], idx[rows] = d.reshape(-1, kk), i.reshape(-1, kk)
+                advance(i.size // kk)
+    else:
+        dist, idx = tree.query(q, k=kk, workers=-1)
     if kk == 1:
         dist, idx = dist.reshape(-1, 1), idx.reshape(-1, 1)
     if not include_self and query is None:
@@ -107,6 +99,13 @@ def leaf_order(tree: cKDTree, rows: np.ndarray | None = None) -> np.ndarray:
     rank[order] = np.arange(len(order))
     rows = np.asarray(rows, dtype=np.int64)
     return rows[np.argsort(rank[rows], kind="stable")]
+
+
+def leaf_chunks(tree: cKDTree, size: int):
+    """The cloud's rows in leaf order (``leaf_order``), ``size`` at a time."""
+    order = leaf_order(tree)
+    for s in range(0, len(order), size):
+        yield order[s:s + size]
 
 
 #: a point whose mean distance to its SPACING_K nearest neighbours exceeds this

@@ -23,7 +23,7 @@ from . import _kernels, progress
 from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
-from .neighbors import (SPACING_K, build_tree, centered, leaf_order, orient_normals_mst,
+from .neighbors import (SPACING_K, build_tree, centered, leaf_chunks, orient_normals_mst,
                         spacing_from_rows, tile_exact)
 
 log = logging.getLogger("pcprep")
@@ -158,9 +158,7 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     dist = np.zeros((n, k), dtype=np.float32)
     kth = np.zeros(n)
     rows = np.zeros(n)
-    order = leaf_order(tree)
-    for s in range(0, n, 4 * CHUNK):
-        at = order[s:s + 4 * CHUNK]
+    for at in leaf_chunks(tree, 4 * CHUNK):
         d, j = tree.query(points[at], k=k, workers=-1)
         d, j = d.reshape(len(at), k), j.reshape(len(at), k)
         idx[at] = j

@@ -23,7 +23,7 @@ from . import _kernels, sparse
 from ._params import Param, preset_param, resolve_params, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
-from .neighbors import CHUNK, build_tree, knn, leaf_order, spacing_from_rows, weighted_pca
+from .neighbors import CHUNK, build_tree, knn, leaf_chunks, spacing_from_rows, weighted_pca
 
 log = logging.getLogger("pcprep")
 
@@ -344,9 +344,7 @@ def _knn32(P, k, tree):
     n = len(P)
     gd = np.zeros((n, k), dtype=np.float32)
     gi = np.zeros((n, k), dtype=np.int32)
-    order = leaf_order(tree)
-    for s0 in range(0, n, CHUNK):
-        at = order[s0:s0 + CHUNK]
+    for at in leaf_chunks(tree, CHUNK):
         d, i = tree.query(P[at], k=k, workers=-1)
         gd[at], gi[at] = d.reshape(len(at), k), i.reshape(len(at), k)
     return gd, gi
