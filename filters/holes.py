@@ -520,7 +520,7 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
     the box.  Scores, threshold and the chain tests are cloud-wide and run
     on the gathered rows.
     """
-    from .neighbors import tile_exact
+    from .neighbors import tile_miss
 
     x = points - centre
     _, score_cfg = split_params(params)
@@ -530,8 +530,9 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
     tree = build_tree(x)
     ks = scale_sizes(score_cfg.k_min, score_cfg.k_max, score_cfg.n_scales)
     feats = hole_features(x, ks, h=h, tree=tree, tangential=rules.tangential_shift)
-    if not tile_exact(x[core], None, feats.reach[core], lo - centre, hi - centre, 0).all():
-        return {"exact": False}
+    miss = tile_miss(x[core], feats.reach[core], lo - centre, hi - centre)
+    if miss is not None:
+        return miss
     F = feats.features[core]
     bdist = _rim_distance(F, ks) if rules.rim_distance else None
     return {"exact": True, "features": _orient(F), "extent": feats.extent[core],

@@ -434,6 +434,23 @@ def centered(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points - c, c
 
 
+def tile_miss(points: np.ndarray, reach: np.ndarray, lo, hi) -> dict | None:
+    """``None`` when every row's ball (radius ``reach``) lies inside the box
+    ``[lo, hi]`` (``tile_exact`` with no hops), else a tile's "not exact" result
+    with ``short``: how much the box must grow on its sides for every ball to
+    fit.  Growing the box only adds points, which can only shrink a k-NN reach,
+    so a halo grown by ``short`` (and a margin) is wide enough for these rows."""
+    points = np.asarray(points)
+    if not len(points):
+        return None
+    gap = np.minimum((points - np.asarray(lo)).min(axis=1),
+                     (np.asarray(hi) - points).min(axis=1))
+    over = np.asarray(reach) - gap
+    if (over < 0).all():
+        return None
+    return {"exact": False, "short": float(over.max())}
+
+
 def tile_exact(points: np.ndarray, idx: np.ndarray, reach: np.ndarray, lo, hi,
                hops: int) -> np.ndarray:
     """Rows of a tile whose result equals the one a run over the whole cloud gives.

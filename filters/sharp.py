@@ -482,7 +482,7 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
     rows.  A result is ``{"exact": False}`` when a core row's neighbourhood
     may reach beyond the box, which makes the tiler widen the halo.
     """
-    from .neighbors import build_tree, tile_exact
+    from .neighbors import build_tree, tile_miss
 
     x = points - centre
     box = (lo - centre, hi - centre)
@@ -494,8 +494,9 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
         tree = build_tree(x)
         ks = scale_sizes(score_cfg.k_min, score_cfg.k_max, score_cfg.n_scales)
         feats = sharp_features(x, ks, h=h, tree=tree, weighted=not rules.uniform_pca)
-        if not tile_exact(x[core], None, feats.reach[core], *box, 0).all():
-            return {"exact": False}
+        miss = tile_miss(x[core], feats.reach[core], *box)
+        if miss is not None:
+            return miss
         return {"exact": True, "features": feats.features[core], "normals": feats.normals[core],
                 "ridge_pd": feats.ridge_pd[core], "nearest": feats.nearest[core]}
     sel = core & mask
@@ -505,8 +506,9 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
             return {"exact": False}
         tree = build_tree(x)
         d, _ = tree.query(x[sel], k=[min(k, len(x))], workers=1)
-        if not tile_exact(x[sel], None, d[:, -1], *box, 0).all():
-            return {"exact": False}
+        miss = tile_miss(x[sel], d[:, -1], *box)
+        if miss is not None:
+            return miss
         _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, regular=regular, cfg=cfg,
                   rules=rules)
     return {"exact": True, "mask": sel[core]}

@@ -523,7 +523,7 @@ def sdbs_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: in
     a chain of earlier decisions reaches it from beyond the halo (measured in
     docs/decisions/scale.md).
     """
-    from .neighbors import tile_exact
+    from .neighbors import tile_miss
 
     x = points - centre
     kk = min(n_total, max(k, GRAPH_K))
@@ -533,8 +533,9 @@ def sdbs_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: in
     gd, gi = _knn32(x, kk, tree)
     if stage == "features":
         reach = gd[core, k - 1].astype(np.float64) * (1.0 + 1e-6)  # float32 distances
-        if not tile_exact(x[core], None, reach, lo - centre, hi - centre, 0).all():
-            return {"exact": False}
+        miss = tile_miss(x[core], reach, lo - centre, hi - centre)
+        if miss is not None:
+            return miss
         nrm, sigma = local_geometry(x, normals, gd[:, :k], gi[:, :k], h)
         return {"exact": True, "normals": nrm[core], "sigma": sigma[core],
                 "rows6": gd[core, 1:7].mean(axis=1, dtype=np.float64)}

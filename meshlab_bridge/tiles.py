@@ -44,7 +44,7 @@ import numpy as np
 
 from pcprep.filters import progress
 from pcprep.filters._validation import InvalidParameterError, PointCloudError
-from pcprep.filters.neighbors import SPACING_K, build_tree, spacing_from_rows, tile_exact
+from pcprep.filters.neighbors import SPACING_K, build_tree, knn, spacing_from_rows, tile_miss
 
 log = logging.getLogger("pcprep")
 
@@ -54,6 +54,9 @@ CHUNK = 1 << 20
 HOP_H = 4.0
 #: a tile whose halo proved too narrow runs again with a halo this many times wider
 GROW = 1.6
+#: a tile that says how much its halo fell short runs again with the halo grown
+#: by that much, times this margin
+SHORT_MARGIN = 1.02
 #: bytes per extended point a tile's task needs at most (denoise: neighbour lists,
 #: its state and the chunk buffers), for ``tiles="auto"``
 BYTES_PER_POINT = 4_000
@@ -121,12 +124,14 @@ def source_from_array(points: np.ndarray, scratch: str) -> Source:
 class TileIndex:
     """A uniform grid over the bounding box; the non-empty cells are the tiles.
 
-    ``order`` lists the rows cell by cell (input order within a cell), and
-    ``start[c]:start[c + 1]`` are cell ``c``'s.
+    Cells are ``sides`` long on each axis (``side``, the grid's nominal cell
+    side, or less: see ``build_index``).  ``order`` lists the rows cell by cell
+    (input order within a cell), and ``start[c]:start[c + 1]`` are cell ``c``'s.
     """
 
     lo: np.ndarray
     side: float
+    sides: np.ndarray
     shape: tuple
     order: np.ndarray
     start: np.ndarray
@@ -135,22 +140,28 @@ class TileIndex:
 
     def cell_box(self, c: int):
         ijk = np.array(np.unravel_index(c, self.shape))
-        lo = self.lo + ijk * self.side
-        return lo, lo + self.side
+        lo = self.lo + ijk * self.sides
+        return lo, lo + self.sides
 
     def core_rows(self, c: int) -> np.ndarray:
         return np.asarray(self.order[self.start[c]:self.start[c + 1]])
 
 
-def _cell_ids(xyz, lo, side, shape) -> np.ndarray:
-    ijk = np.floor((xyz - lo) / side).astype(np.int64)
+def _cell_ids(xyz, lo, sides, shape) -> np.ndarray:
+    ijk = np.floor((xyz - lo) / sides).astype(np.int64)
     ijk = np.clip(ijk, 0, np.array(shape) - 1)
     return np.ravel_multi_index(ijk.T, shape)
 
 
-def _grid_shape(src: Source, side: float) -> tuple:
+def _grid(src: Source, side: float, fit: bool = True) -> tuple:
+    """The grid's shape and its cells' sides for a nominal cell ``side``: with
+    ``fit`` the sides shrink so that the cells fill the bounding box exactly,
+    since a last row of cells only a sliver wide would be a tile with a few core
+    points and a full halo (its cost is the halo's, its output nearly nothing)."""
     ext = np.maximum(src.hi - src.lo, 1e-300)
-    return tuple(int(v) for v in np.maximum(1, np.ceil(ext / side)))
+    shape = np.maximum(1, np.ceil(ext / side))
+    sides = ext / shape if fit else np.full(3, float(side))
+    return tuple(int(v) for v in shape), sides
 
 
 def build_index(src: Source, target: int, scratch: str, side: float | None = None
@@ -158,8 +169,11 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
     """Tiles of about ``target`` core points: the grid side is chosen on a
     subsample (every m-th row) so that the non-empty cells hold ``target``
     points on average; then one pass counts the rows per cell and a second
-    writes their order."""
+    writes their order.  A ``side`` given is kept as it is (cubic cells from
+    the box's low corner, to align with a grid the data has); a chosen one is
+    fitted to the box (``_grid``)."""
     n = src.n
+    fit = side is None
     ext = float(np.max(src.hi - src.lo))
     if side is not None:
         if not side > 0:
@@ -173,18 +187,18 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
         for _ in range(40):  # bisection on log(side): mean occupancy ≈ target
             mid = 0.5 * (lo_s + hi_s)
             side = math.exp(mid)
-            shape = _grid_shape(src, side)
-            occupied = len(np.unique(_cell_ids(sample, src.lo, side, shape)))
+            shape, sides = _grid(src, side)
+            occupied = len(np.unique(_cell_ids(sample, src.lo, sides, shape)))
             if n / occupied > target:
                 hi_s = mid
             else:
                 lo_s = mid
-        side = math.exp(0.5 * (lo_s + hi_s))
-    shape = _grid_shape(src, side)
+        side = math.exp(lo_s)  # the side of the pair whose tiles hold at most target
+    shape, sides = _grid(src, side, fit)
     ncell = int(np.prod(shape))
     counts = np.zeros(ncell, dtype=np.int64)
     for s in range(0, n, CHUNK):
-        counts += np.bincount(_cell_ids(src.xyz[s:s + CHUNK], src.lo, side, shape),
+        counts += np.bincount(_cell_ids(src.xyz[s:s + CHUNK], src.lo, sides, shape),
                               minlength=ncell)
     start = np.zeros(ncell + 1, dtype=np.int64)
     np.cumsum(counts, out=start[1:])
@@ -192,7 +206,7 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
                                       dtype=np.int64, shape=(n,))
     fill = start[:-1].copy()
     for s in range(0, n, CHUNK):
-        ids = _cell_ids(src.xyz[s:s + CHUNK], src.lo, side, shape)
+        ids = _cell_ids(src.xyz[s:s + CHUNK], src.lo, sides, shape)
         srt = np.argsort(ids, kind="stable")
         ids_s = ids[srt]
         uniq, first, cnt = np.unique(ids_s, return_index=True, return_counts=True)
@@ -202,7 +216,7 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
             fill[c] += m
     cells = np.flatnonzero(counts)
     coords = np.array(np.unravel_index(cells, shape)).T
-    return TileIndex(src.lo.copy(), float(side), shape, order, start, cells, coords)
+    return TileIndex(src.lo.copy(), float(side), sides, shape, order, start, cells, coords)
 
 
 def extended(src: Source, index: TileIndex, c: int, halo: float):
@@ -212,9 +226,9 @@ def extended(src: Source, index: TileIndex, c: int, halo: float):
     blo, bhi = lo - halo, hi + halo
     blo = np.where(blo <= src.lo, -np.inf, blo)
     bhi = np.where(bhi >= src.hi, np.inf, bhi)
-    m = int(math.ceil(halo / index.side))
+    m = np.ceil(halo / index.sides)
     ijk = np.array(np.unravel_index(c, index.shape))
-    near = np.abs(index.coords - ijk).max(axis=1) <= m
+    near = (np.abs(index.coords - ijk) <= m).all(axis=1)
     parts = []
     for cc in index.cells[near]:
         rows = index.core_rows(int(cc))
@@ -300,7 +314,9 @@ class _Runner:
     def run(self, label: str, fn, halo: float, args: dict, collect, per_tile=None) -> None:
         """``fn(points, lo, hi, core, **args, **per_tile(rows, core))`` on every
         tile; ``collect(rows, core, result)`` gets each exact result (rows = the
-        extended rows)."""
+        extended rows).  A halo that proved too narrow for one tile is too narrow
+        for the others of the same cloud as a rule, so the tiles not yet sent
+        start at the widened halo (results are the same: every tile is checked)."""
         import time
 
         from dask.distributed import as_completed
@@ -308,6 +324,7 @@ class _Runner:
         t0 = time.perf_counter()
         cells = [int(c) for c in self.index.cells]
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
+        floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
         seen = np.zeros(self.src.n, dtype=np.int8)
         queue = list(cells)
         limit = IN_FLIGHT * max(1, len(self.client.scheduler_info()["workers"]))
@@ -317,6 +334,7 @@ class _Runner:
             def submit():
                 while queue and futures.count() < limit:
                     c = queue.pop(0)
+                    width[c] = max(width[c], floor)
                     rows, pts, core, lo, hi = extended(self.src, self.index, c, width[c])
                     more = {} if per_tile is None else per_tile(rows, core)
                     fut = _submit(self.client, fn, pts, lo, hi, core, **args, **more)
@@ -331,7 +349,10 @@ class _Runner:
                     if np.isinf(self.src.hi - self.src.lo).any() or \
                             width[c] > 4 * float(np.max(self.src.hi - self.src.lo)):
                         raise PointCloudError(f"{label}: tile {c} cannot be made exact")
-                    width[c] *= GROW
+                    short = res.get("short")
+                    width[c] = (width[c] + short) * SHORT_MARGIN if short is not None \
+                        else width[c] * GROW
+                    floor = max(floor, width[c])
                     log.debug("%s: tile %d: halo widened to %.4g", label, c, width[c])
                     queue.insert(0, c)
                 else:
@@ -359,12 +380,10 @@ def _spacing_tile(points, lo, hi, core, *, centre, n_total):
     k = SPACING_K + 1
     if len(x) < min(k, n_total):
         return {"exact": False}
-    k = min(k, len(x))
-    d, idx = build_tree(x).query(x, k=k, workers=1)
-    d, idx = d.reshape(len(x), k), idx.reshape(len(x), k)
-    sure = tile_exact(x, idx, d[:, -1], lo - centre, hi - centre, 0)
-    if not sure[core].all():
-        return {"exact": False}
+    d, _ = knn(x, min(k, len(x)))
+    miss = tile_miss(x[core], d[core, -1], lo - centre, hi - centre)
+    if miss is not None:
+        return miss
     return {"exact": True, "rows": d[:, 1:].mean(axis=1)}
 
 
@@ -375,16 +394,16 @@ def _outlier_tile(points, lo, hi, core, *, centre, h, n_total, method, k, radius
     if len(x) < min(kk, n_total):
         return {"exact": False}
     tree = build_tree(x)
-    d, idx = tree.query(x, k=kk, workers=1)
+    d, _ = knn(x, kk, tree=tree)
     if method == "statistical":
         reach, score = d[:, -1], d[:, 1:k + 1].mean(axis=1) / h
     else:
         reach = np.maximum(d[:, -1], radius * h)
         counts = tree.query_ball_point(x, r=radius * h, return_length=True, workers=1)
         score = np.asarray(counts, dtype=np.float64) - 1.0
-    sure = tile_exact(x, idx, reach, lo - centre, hi - centre, 0)
-    if not sure[core].all():
-        return {"exact": False}
+    miss = tile_miss(x[core], reach[core], lo - centre, hi - centre)
+    if miss is not None:
+        return miss
     return {"exact": True, "score": score}
 
 
@@ -462,7 +481,8 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             total = time.perf_counter() - t1 + runner.times["spacing"]
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
                              time_driver=total - sum(runner.times.values()),
-                             tiles=len(index.cells), grid_side=index.side, target=target,
+                             tiles=len(index.cells), grid_side=index.side,
+                             grid_shape=index.shape, target=target,
                              halo_max=max(runner.halo.values()) if runner.halo else 0.0)
             return out
     finally:
@@ -488,7 +508,7 @@ def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     def collect(rows, core, res):
         rows6[rows[core]] = res["rows"][core]
 
-    halo0 = 0.05 * index.side
+    halo0 = 0.05 * float(index.sides.max())
     runner.run("spacing", _spacing_tile, halo0, {"centre": src.centre, "n_total": src.n},
                collect)
     runner.halo.clear()
@@ -507,7 +527,8 @@ def _outliers(runner, src, normals, h, prm, scratch) -> TiledResult:
         score[rows[core]] = res["score"][core]
 
     args = dict(centre=src.centre, h=h, n_total=src.n, **prm)
-    reach = (prm["radius"] if prm["method"] == "radius" else 2.0) + tile_hops(prm)
+    reach = (prm["radius"] if prm["method"] == "radius" else _knn_reach(max(prm["k"], SPACING_K) + 1)) \
+        + tile_hops(prm)
     runner.run("outliers", _outlier_tile, reach * h, args, collect)
     if prm["method"] == "statistical":
         threshold = float(score.mean() + prm["std_ratio"] * score.std())

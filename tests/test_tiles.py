@@ -110,15 +110,10 @@ def test_small_and_empty_tiles(client):
     pts = np.r_[a, b, lone]
     ref = remove_outliers(pts)
     res = tiles.run_tiled("outliers", pts, client=client, tiles=800)
-    cells = int(np.prod(_shape(res.stats["grid_side"], pts)))
+    cells = int(np.prod(res.stats["grid_shape"]))
     assert res.stats["tiles"] < cells  # empty cells exist and are skipped
     assert np.array_equal(res.fields["score"], ref.score)
     assert set(range(len(a) + len(b), len(pts))) <= set(ref.removed_idx)
-
-
-def _shape(side, pts):
-    ext = pts.max(axis=0) - pts.min(axis=0)
-    return np.maximum(1, np.ceil(ext / side))
 
 
 def test_killed_worker_loses_nothing(client, denoise_ref):
