@@ -9,6 +9,8 @@ variation (4.17)), the inner loop, and the edge correction (4.18)-(4.19).
 
 from __future__ import annotations
 
+import math
+
 from functools import partial
 
 import numpy as np
@@ -122,11 +124,13 @@ class PlannedDecisions:
     The inner loop decides twice from sums over every point of the cloud (did
     the total energy (4.5) rise; is the RMS move below ``tol``), which one tile
     cannot know.  A tiled run therefore fixes the outcomes in advance
-    (``plan``, one bool per decision in the order they arise; False past its
-    end), and every tile records the sums over its core rows that the decision
-    would have read (``trace``: ``(kind, a, b, outcome)``).  Added over the tiles
-    the sums are the whole cloud's; the caller replays the decisions with them,
-    and where one disagrees with the plan it runs again with the corrected plan
+    (``plan``, one bool per decision in the order they arise) and, past the
+    plan's end, takes each from the tile's own core rows, which on a tile of
+    many points nearly always answer as the whole cloud does.  Every tile
+    records the sums over its core rows that the decision read (``trace``:
+    ``(kind, a, b, outcome)``).  Added over the tiles the sums are the whole
+    cloud's; the caller replays the decisions with them, and where one disagrees
+    with a tile's outcome it runs again with the plan corrected up to there
     (see meshlab_bridge/tiles.py).  ``None`` in place of this object: the
     decisions are taken from the cloud itself, as in a one-piece run."""
 
@@ -135,9 +139,11 @@ class PlannedDecisions:
         self.plan = tuple(bool(b) for b in plan)
         self.trace = []
 
-    def decide(self, kind: str, a: float, b: float) -> bool:
+    def decide(self, kind: str, a: float, b: float, local: bool) -> bool:
+        """The plan's outcome of this decision, or past its end ``local`` (the
+        test on the core rows' sums ``a``, ``b``)."""
         i = len(self.trace)
-        out = self.plan[i] if i < len(self.plan) else False
+        out = self.plan[i] if i < len(self.plan) else bool(local)
         self.trace.append((kind, a, b, out))
         return out
 
@@ -150,7 +156,7 @@ def _rose(e_tot: float, before: float, sync) -> bool:
     """Did the total energy rise (the whole cloud's, or the plan's answer)."""
     if sync is None:
         return e_tot > before
-    return sync.decide("rise", e_tot, before)
+    return sync.decide("rise", e_tot, before, e_tot > before)
 
 
 def _settled(step: np.ndarray, tol: float, sync) -> bool:
@@ -158,7 +164,8 @@ def _settled(step: np.ndarray, tol: float, sync) -> bool:
     sq = np.square(step).sum(axis=1)
     if sync is None:
         return float(np.sqrt(np.mean(sq))) < tol
-    return sync.decide("move", float(sq[sync.core].sum()), 0.0)
+    a = float(sq[sync.core].sum())
+    return sync.decide("move", a, 0.0, math.sqrt(a / max(1, int(sync.core.sum()))) < tol)
 
 
 def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float, sync=None):

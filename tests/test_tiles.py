@@ -2,6 +2,7 @@
 one-piece run's, on seams, with tiles smaller than a neighbourhood, with empty
 cells, and when a worker is killed mid-run."""
 
+import math
 import os
 import signal
 
@@ -246,30 +247,31 @@ def test_cli_tiled_features_ply(tmp_path):
 
 
 def test_denoise_plan_replay_finds_the_cloud_decisions():
-    # a hidden sequence of cloud-wide "is the move below tol" answers: the first
-    # inner loop settles at its 7th decision, every later one at its 4th
-    truth = [False] * 6 + [True] + ([False] * 3 + [True]) * 4
-    n, tol = 100, 0.1
+    # two tiles of 60 and 40 core rows and a fixed sequence of "is the RMS move
+    # below tol" decisions; per decision each tile's sum of squared moves.  At
+    # decision 3 the small tile alone has settled (its local answer is "yes",
+    # the cloud's "no"); at decision 5 both and the cloud have.
+    tol, sizes = 0.1, (60, 40)
+    rms = [(0.5, 0.5), (0.3, 0.3), (0.2, 0.2), (0.15, 0.05), (0.12, 0.11), (0.05, 0.05)]
+    sums = [[(r * tol) ** 2 * m / tol ** 2 for r, m in zip(row, sizes)] for row in rms]
+    truth = [math.sqrt(sum(row) / sum(sizes)) < tol for row in sums]
+    assert truth == [False] * 5 + [True]
 
-    def run(plan):  # one tile holding every row: its sums are the cloud's
-        used = [plan[i] if i < len(plan) else False for i in range(len(truth))]
-        a = [(0.0 if t else 4.0 * tol * tol * n) for t in truth]
-        return [[("move", a[i], 0.0, used[i]) for i in range(len(truth))]]
+    def run(plan):  # the tiles' traces: the plan, then each tile's own answer
+        return [[("move", sums[i][t], 0.0, plan[i] if i < len(plan)
+                  else math.sqrt(sums[i][t] / sizes[t]) < tol) for i in range(len(sums))]
+                for t in range(2)]
 
-    def runs_needed(predict):
-        plan, runs = [], 0
-        while True:
-            runs += 1
-            wrong = tiles._replay(run(plan), plan, n, tol)
-            if wrong is None:
-                return plan, runs
-            plan = wrong if predict else wrong[:len(wrong) - len(tiles._predict(wrong))]
-
-    plan, runs = runs_needed(True)
-    assert plan[:len(truth)] == truth
-    assert runs == 3  # the repeated pattern is predicted after the second "yes"
-    plain, runs_plain = runs_needed(False)
-    assert plain[:len(truth)] == truth and runs_plain == 6
+    plan, runs = [], 0
+    while True:
+        runs += 1
+        wrong = tiles._replay(run(plan), plan, sum(sizes), tol)
+        if wrong is None:
+            break
+        assert len(wrong) > len(plan)  # every run fixes one more decision
+        plan = wrong
+    assert runs == 2 and plan == truth[:4]  # one miss: the small tile's early "yes"
+    assert [d[3] for d in run(plan)[1]] == truth
 
 
 def test_simplify_exact_count_and_same_error(client):
