@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import resource
 import shutil
 import tempfile
 import time
@@ -30,6 +29,10 @@ QUICK_SIZES = (100_000,)
 FILTERS = ("outliers", "denoise", "saliency", "features", "holes", "simplify")
 #: parameters a filter needs beyond its defaults
 PARAMS = {"simplify": {"ratio": 0.1}}
+#: larger clouds, on 2 workers only, for some filters: peak memory per worker and
+#: time per million points against N (flat when the tiles keep their size)
+LARGE = {5_000_000: ("outliers", "features", "simplify")}
+QUICK_LARGE = {300_000: ("outliers",)}
 #: core points per tile
 TILE = 200_000
 QUICK_TILE = 25_000
@@ -61,11 +64,12 @@ def _terrain_laz(path: str, n: int, seed: int) -> None:
 
 
 def _worker_peak_rss(client) -> list:
-    """Peak resident memory of each worker process, bytes."""
-    def peak():
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    """Peak resident memory of each worker process, MiB (``VmHWM``, which starts
+    afresh at exec; ``ru_maxrss`` of a spawned worker would report its parent's
+    RSS at the fork when that is larger)."""
+    from .harness import _peak_mb
 
-    return sorted(client.run(peak).values())
+    return sorted(client.run(_peak_mb).values())
 
 
 def _knn16_seconds(path: str) -> float:
@@ -139,7 +143,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
             "index_s": st["time_index"], "passes_s": st["time_passes"],
             "driver_s": st["time_driver"], "write_s": t_out, "serial_s": serial,
             "tiles": st["tiles"], "halo_max_h": st["halo_max"] / res.h,
-            "peak_worker_rss_mb": [p / 2**20 for p in peaks],
+            "peak_worker_rss_mb": peaks,
             "s_per_million": wall / (n / 1e6)}
 
 
@@ -168,6 +172,14 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                     log.warning("scale: %s, %d points, %d worker(s)", name, n, workers)
                     rows.append(_one(path, os.path.join(work, "out.laz"), name, workers,
                                      tile))
+            os.remove(path)
+        for n, names in (QUICK_LARGE if quick else LARGE).items():
+            path = os.path.join(work, f"terrain_{n}.laz")
+            _terrain_laz(path, n, seed)
+            for name in names:
+                log.warning("scale: %s, %d points, 2 workers", name, n)
+                rows.append(_one(path, os.path.join(work, "out.laz"), name, 2, tile))
+            os.remove(path)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     summary = []
@@ -184,7 +196,17 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                             "one_piece_x_knn16": whole[(name, n)] / knn[n],
                             "proj_1e9_32_h": _project(one, 32) / 3600,
                             "proj_1e9_256_h": _project(one, 256) / 3600})
-    out = {"rows": rows, "summary": summary, "knn16_s": knn, "tile": tile,
+    growth = []
+    for r in rows:
+        if r["n"] in sizes or r["workers"] != 2:
+            continue
+        base = next(b for b in rows if b["filter"] == r["filter"] and b["workers"] == 2
+                    and b["n"] == sizes[-1])
+        growth.append({"filter": r["filter"], "n": r["n"], "n0": base["n"],
+                       "rss_ratio": max(r["peak_worker_rss_mb"]) /
+                       max(base["peak_worker_rss_mb"]),
+                       "time_ratio": r["s_per_million"] / base["s_per_million"]})
+    out = {"rows": rows, "summary": summary, "growth": growth, "knn16_s": knn, "tile": tile,
            "params": PARAMS,
            "cpus": os.cpu_count()}
     with open(os.path.join(out_dir, "scale.json"), "w", encoding="utf-8") as f:
@@ -218,6 +240,14 @@ def _markdown(out: dict) -> str:
                      f"{s['one_piece_x_knn16']:.1f} | {s['speedup_2']:.2f} | "
                      f"{s['serial_fraction']:.3f} | {s['x_knn16']:.1f} | "
                      f"{s['proj_1e9_32_h']:.2f} | {s['proj_1e9_256_h']:.2f} |")
+    if out.get("growth"):
+        lines += ["", "Against N (2 workers, same tile size): the larger cloud's peak RSS "
+                  "per worker and time per 10⁶ points over those of the smaller.", "",
+                  "| filter | points | vs points | peak RSS per worker, ratio | "
+                  "s / 10⁶ pts, ratio |", "|---|---|---|---|---|"]
+        for g in out["growth"]:
+            lines.append(f"| {g['filter']} | {g['n']:,} | {g['n0']:,} | "
+                         f"{g['rss_ratio']:.2f} | {g['time_ratio']:.2f} |")
     lines += ["", "Projection (Amdahl): T(P) = S·(10⁹/n) + (W − S)·(10⁹/n)/P, with S the "
               "serial seconds and W the wall seconds of the 1-worker run at n points.  "
               "Assumed: the serial part (streamed read and write, index, driver) runs at "
