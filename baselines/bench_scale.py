@@ -110,17 +110,13 @@ def _one_piece_seconds(path: str, name: str) -> float:
 
 
 def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
-    from dask.distributed import Client, LocalCluster
-
     from pcprep.meshlab_bridge import registry, tiles
     from pcprep.meshlab_bridge.formats import stream
 
     spec = tiles._spec(registry, name)
     scratch = tempfile.mkdtemp(prefix="pcprep-bench-")
     try:
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                          dashboard_address=":0", silence_logs=logging.ERROR) as cl, \
-                Client(cl) as client:
+        with tiles.dask_client(workers=workers) as client:  # the CLI's local cluster
             _pin_workers(client)
             t0 = time.perf_counter()
             n = stream.point_count(path)
