@@ -29,10 +29,16 @@ QUICK_SIZES = (100_000,)
 FILTERS = ("outliers", "denoise", "saliency", "features", "holes", "simplify")
 #: parameters a filter needs beyond its defaults
 PARAMS = {"simplify": {"ratio": 0.1}}
-#: larger clouds, on 2 workers only, for some filters: peak memory per worker and
-#: time per million points against N (flat when the tiles keep their size)
-LARGE = {5_000_000: ("outliers", "features", "simplify")}
-QUICK_LARGE = {300_000: ("outliers",)}
+#: more clouds, on 2 workers only: (cloud, points, filters).  Larger terrains give
+#: peak memory per worker and time per million points against N (flat when the
+#: tiles keep their size); the scan is the real gargoyle point set of the shared
+#: models, laid out in copies (run only when that folder is present)
+EXTRA = (("terrain", 5_000_000, ("outliers", "features", "simplify")),
+         ("terrain", 20_000_000, ("outliers", "simplify")),
+         ("scan", 1_000_000, FILTERS))
+QUICK_EXTRA = (("terrain", 300_000, ("outliers",)), ("scan", 100_000, ("outliers",)))
+#: the shared model the scan-derived cloud is made of
+SCAN = "scans/gargoyle_points_95k.ply"
 #: core points per tile
 TILE = 200_000
 QUICK_TILE = 25_000
@@ -61,6 +67,41 @@ def _terrain_laz(path: str, n: int, seed: int) -> None:
             rec.intensity = g.integers(0, 4096, m)
             rec.classification = np.where(roof, 6, 2)
             w.write_points(rec)
+
+
+def _scan_laz(path: str, n: int, seed: int) -> int | None:
+    """A real scan laid out in copies: the shared gargoyle point set (95 435
+    points, its own sampling and noise) turned about z at random and placed on
+    a ground grid with a gap of a fifth of its size, whole copies until at least
+    ``n`` points.  Returns the point count, or None without the shared models."""
+    import laspy
+
+    from pcprep.meshlab_bridge.formats import read_cloud
+
+    from .meshes import shared_models_root
+
+    src = shared_models_root() / SCAN
+    if not src.is_file():
+        return None
+    pts = read_cloud(src).points
+    pts = pts - pts.mean(axis=0)
+    copies = -(-n // len(pts))
+    side = int(np.ceil(np.sqrt(copies)))
+    step = 1.2 * float(np.ptp(pts[:, :2], axis=0).max())
+    g = np.random.default_rng(seed)
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.offsets = [1000.0, 2000.0, 0.0]
+    header.scales = [1e-4, 1e-4, 1e-4]
+    with laspy.open(path, mode="w", header=header, do_compress=True) as w:
+        for c in range(copies):
+            a = g.uniform(0.0, 2.0 * np.pi)
+            rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0],
+                            [0.0, 0.0, 1.0]])
+            q = pts @ rot.T + [1000.0 + step * (c % side), 2000.0 + step * (c // side), 0.0]
+            rec = laspy.ScaleAwarePointRecord.zeros(len(q), header=header)
+            rec.x, rec.y, rec.z = q[:, 0], q[:, 1], q[:, 2]
+            w.write_points(rec)
+    return copies * len(pts)
 
 
 def _worker_peak_rss(client) -> list:
@@ -169,12 +210,18 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                     rows.append(_one(path, os.path.join(work, "out.laz"), name, workers,
                                      tile))
             os.remove(path)
-        for n, names in (QUICK_LARGE if quick else LARGE).items():
-            path = os.path.join(work, f"terrain_{n}.laz")
-            _terrain_laz(path, n, seed)
+        for cloud, n, names in (QUICK_EXTRA if quick else EXTRA):
+            path = os.path.join(work, f"{cloud}_{n}.laz")
+            if cloud == "scan":
+                if _scan_laz(path, n, seed) is None:
+                    log.warning("scale: no shared models; the scan-derived cloud is skipped")
+                    continue
+            else:
+                _terrain_laz(path, n, seed)
             for name in names:
-                log.warning("scale: %s, %d points, 2 workers", name, n)
-                rows.append(_one(path, os.path.join(work, "out.laz"), name, 2, tile))
+                log.warning("scale: %s, %s of %d points, 2 workers", name, cloud, n)
+                rows.append(dict(_one(path, os.path.join(work, "out.laz"), name, 2, tile),
+                                 cloud=cloud))
             os.remove(path)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -194,7 +241,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
                             "proj_1e9_256_h": _project(one, 256) / 3600})
     growth = []
     for r in rows:
-        if r["n"] in sizes or r["workers"] != 2:
+        if r.get("cloud", "terrain") != "terrain" or r["n"] in sizes or r["workers"] != 2:
             continue
         base = next(b for b in rows if b["filter"] == r["filter"] and b["workers"] == 2
                     and b["n"] == sizes[-1])
@@ -215,7 +262,9 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
 def _markdown(out: dict) -> str:
     lines = ["# Scale: tiled runs on Dask", "",
              f"Generated airborne-like LAZ (rolling ground, roofs with sharp steps, 1 cm "
-             f"noise); {out['tile']} core points per tile; LocalCluster of 1 and 2 worker "
+             f"noise) and, marked (scan), the shared gargoyle point set ({SCAN}, a "
+             f"real scan of 95,435 points) laid out in copies on a ground grid; "
+             f"{out['tile']} core points per tile; LocalCluster of 1 and 2 worker "
              f"processes (1 thread each, each pinned to a core of its own) on a "
              f"{out['cpus']}-core machine; the one-piece run uses every core.  Wall time includes the streamed read into the scratch memory map, the "
              "tile index, the exact h pass, the filter's passes and the streamed write.", "",
@@ -223,7 +272,8 @@ def _markdown(out: dict) -> str:
              "peak RSS per worker MB | widest halo (h) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in out["rows"]:
-        lines.append(f"| {r['filter']} | {r['n']:,} | {r['workers']} | {r['tiles']} | "
+        what = "" if r.get("cloud", "terrain") == "terrain" else f" ({r['cloud']})"
+        lines.append(f"| {r['filter']}{what} | {r['n']:,} | {r['workers']} | {r['tiles']} | "
                      f"{r['wall_s']:.1f} | {r['s_per_million']:.1f} | {r['serial_s']:.1f} | "
                      f"{', '.join(f'{p:.0f}' for p in r['peak_worker_rss_mb'])} | "
                      f"{r['halo_max_h']:.0f} |")
