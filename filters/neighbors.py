@@ -434,6 +434,12 @@ def centered(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points - c, c
 
 
+def _box_gap(points: np.ndarray, lo, hi) -> np.ndarray:
+    """Each row's distance to the nearest face of the box ``[lo, hi]``."""
+    return np.minimum((points - np.asarray(lo)).min(axis=1),
+                      (np.asarray(hi) - points).min(axis=1))
+
+
 def tile_miss(points: np.ndarray, reach: np.ndarray, lo, hi) -> dict | None:
     """``None`` when every row's ball (radius ``reach``) lies inside the box
     ``[lo, hi]`` (``tile_exact`` with no hops), else a tile's "not exact" result
@@ -443,9 +449,7 @@ def tile_miss(points: np.ndarray, reach: np.ndarray, lo, hi) -> dict | None:
     points = np.asarray(points)
     if not len(points):
         return None
-    gap = np.minimum((points - np.asarray(lo)).min(axis=1),
-                     (np.asarray(hi) - points).min(axis=1))
-    over = np.asarray(reach) - gap
+    over = np.asarray(reach) - _box_gap(points, lo, hi)
     if (over < 0).all():
         return None
     return {"exact": False, "short": float(over.max())}
@@ -480,9 +484,7 @@ def tile_exact(points: np.ndarray, idx: np.ndarray, reach: np.ndarray, lo, hi,
     -------
     (n,) bool
     """
-    gap = np.minimum((points - np.asarray(lo)).min(axis=1),
-                     (np.asarray(hi) - points).min(axis=1))
-    ok = np.asarray(reach) < gap
+    ok = np.asarray(reach) < _box_gap(points, lo, hi)
     for _ in range(hops):
         nxt = ok.copy()
         for s in range(0, len(ok), CHUNK):

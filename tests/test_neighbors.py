@@ -164,3 +164,18 @@ def test_knn_in_leaf_order_equals_one_query_in_input_order(monkeypatch):
     np.testing.assert_array_equal(d, want_d)
     d, i = knn(p, 8, tree=tree, include_self=False)
     np.testing.assert_array_equal(i, want_i[:, 1:])
+
+
+def test_tile_miss_says_how_far_the_worst_ball_pokes_out():
+    from pcprep.filters.neighbors import tile_miss
+
+    lo, hi = np.zeros(3), np.ones(3)
+    pts = np.array([[0.5, 0.5, 0.5], [0.1, 0.5, 0.5], [0.5, 0.95, 0.5]])
+    reach = np.array([0.2, 0.3, 0.1])
+    miss = tile_miss(pts, reach, lo, hi)
+    assert miss["exact"] is False
+    assert miss["short"] == pytest.approx(0.2)  # the second row: 0.3 - 0.1
+    grown = 0.2 * 1.02
+    assert tile_miss(pts, reach, lo - grown, hi + grown) is None
+    assert tile_miss(pts, reach, [-np.inf] * 3, [np.inf] * 3) is None  # open sides
+    assert tile_miss(pts, reach, lo - 0.15, hi + 0.15)["short"] == pytest.approx(0.05)

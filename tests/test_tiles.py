@@ -292,3 +292,18 @@ def test_simplify_exact_count_and_same_error(client):
     e_got = simplification_error(pts, pts[got])
     assert abs(e_got[0] - e_ref[0]) <= 0.01 * e_ref[0]
     assert abs(e_got[1] - e_ref[1]) <= 0.01 * e_ref[1]
+
+
+def test_grid_cells_fill_the_box_without_slivers(tmp_path):
+    # 5.05 × 5 plane: a cubic grid of side 1 (or 2.5) would add a last row of
+    # cells 0.05 wide; the fitted grid's cells share the box evenly
+    g = np.random.default_rng(6)
+    pts = np.c_[g.uniform(0, 5.05, 50_000), g.uniform(0, 5.0, 50_000), np.zeros(50_000)]
+    src = tiles.source_from_array(pts, str(tmp_path))
+    index = tiles.build_index(src, 10_000, str(tmp_path))
+    counts = np.diff(index.start)[index.cells]
+    assert counts.mean() <= 10_000
+    assert counts.min() > 0.5 * counts.max()
+    assert np.array_equal(np.sort(np.asarray(index.order)), np.arange(len(pts)))
+    lo, hi = index.cell_box(int(index.cells[-1]))
+    assert np.allclose(hi[:2], pts.max(axis=0)[:2])  # the last cell ends at the box
