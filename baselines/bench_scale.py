@@ -180,6 +180,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
             "index_s": st["time_index"], "passes_s": st["time_passes"],
             "driver_s": st["time_driver"], "write_s": t_out, "serial_s": serial,
             "tiles": st["tiles"], "halo_max_h": st["halo_max"] / res.h,
+            "repeats": {k: st[k] for k in ("denoise_runs", "greedy_passes") if k in st},
             "peak_worker_rss_mb": peaks,
             "s_per_million": wall / (n / 1e6)}
 
