@@ -10,7 +10,6 @@ variation (4.17)), the inner loop, and the edge correction (4.18)-(4.19).
 from __future__ import annotations
 
 import math
-
 from functools import partial
 
 import numpy as np

@@ -15,7 +15,8 @@ neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
 ``hops`` × ``HOP_H`` × h, and the tile function checks it
 (``pcprep.filters.neighbors.tile_exact``): a core row whose neighbourhood chain
 leaves the box makes the tile come back "not exact", and it is run again with a
-halo ``GROW`` times wider.  Cloud-wide values are fitted once and broadcast:
+wider halo: by the amount the tile says it fell short (``tile_miss``, where
+only the rows' own balls count) or else ``GROW`` times.  Cloud-wide values are fitted once and broadcast:
 h in a first pass over the tiles (the exact value, not a sample's: a
 subsample's spacing is larger), the centre from the bounding box, F̄_g and the
 maxima of saliency by a pass of sums, the statistical outlier threshold from
@@ -167,8 +168,8 @@ def _grid(src: Source, side: float, fit: bool = True) -> tuple:
 def build_index(src: Source, target: int, scratch: str, side: float | None = None
                 ) -> TileIndex:
     """Tiles of about ``target`` core points: the grid side is chosen on a
-    subsample (every m-th row) so that the non-empty cells hold ``target``
-    points on average; then one pass counts the rows per cell and a second
+    subsample (every m-th row) so that the non-empty cells hold at most
+    ``target`` points on average; then one pass counts the rows per cell and a second
     writes their order.  A ``side`` given is kept as it is (cubic cells from
     the box's low corner, to align with a grid the data has); a chosen one is
     fitted to the box (``_grid``)."""
