@@ -6,7 +6,9 @@ airborne-like LAZ clouds through the tiled filters, on local Dask clusters of
 1 and 2 worker processes: wall time by stage, peak memory per worker, speed-up,
 time per million points, the serial fraction (streamed ingest, tile index,
 driver work between passes, streamed write) and, from it, the projected time of
-a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report).
+a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report);
+then, on 2 workers, larger terrains (peak memory per worker and time per 10⁶
+points against N) and a cloud of copies of a real scan (``EXTRA``).
 Writes scale.md and scale.json into the output folder (reports/, or reports/quick with --quick).
 """
 
