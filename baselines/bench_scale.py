@@ -36,7 +36,7 @@ PARAMS = {"simplify": {"ratio": 0.1}}
 #: tiles keep their size); the scan is the real gargoyle point set of the shared
 #: models, laid out in copies (run only when that folder is present)
 EXTRA = (("terrain", 5_000_000, ("outliers", "features", "simplify")),
-         ("terrain", 20_000_000, ("outliers", "simplify")),
+         ("terrain", 20_000_000, FILTERS),
          ("scan", 1_000_000, FILTERS))
 QUICK_EXTRA = (("terrain", 300_000, ("outliers",)), ("scan", 100_000, ("outliers",)))
 #: the shared model the scan-derived cloud is made of
@@ -115,6 +115,36 @@ def _worker_peak_rss(client) -> list:
     return sorted(client.run(_peak_mb).values())
 
 
+class _DriverPeak:
+    """The driver's peak resident memory during a run, MiB: all of it (``VmRSS``)
+    and its anonymous part (``RssAnon``), sampled every ``every`` seconds by a
+    thread.  The anonymous part is what the driver needs; the rest are pages of
+    the scratch memory maps and of the files, which the kernel writes back and
+    drops when memory runs short."""
+
+    def __init__(self, every: float = 0.05):
+        self.every, self.rss, self.anon = every, 0.0, 0.0
+
+    def _sample(self):
+        from .harness import _rss_mb
+
+        while not self._stop.wait(self.every):
+            self.rss = max(self.rss, _rss_mb("VmRSS"))
+            self.anon = max(self.anon, _rss_mb("RssAnon"))
+
+    def __enter__(self):
+        import threading
+
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
 def _knn16_seconds(path: str) -> float:
     from pcprep.filters.neighbors import build_tree
     from pcprep.meshlab_bridge.formats import stream
@@ -161,29 +191,32 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
     try:
         with tiles.dask_client(workers=workers) as client:  # the CLI's local cluster
             _pin_workers(client)
-            t0 = time.perf_counter()
-            n = stream.point_count(path)
-            src = tiles.ingest(stream.position_chunks(path), n, scratch)
-            t_in = time.perf_counter() - t0
-            t1 = time.perf_counter()
-            res = tiles.run_tiled(name, source=src, client=client, tiles=tile,
-                                  scratch=scratch, params=PARAMS.get(name))
-            t_run = time.perf_counter() - t1
-            t2 = time.perf_counter()
-            stream.write_streamed(spec, path, dst, res.fields)
-            t_out = time.perf_counter() - t2
+            with _DriverPeak() as driver:
+                t0 = time.perf_counter()
+                n = stream.point_count(path)
+                src = tiles.ingest(stream.position_chunks(path), n, scratch)
+                t_in = time.perf_counter() - t0
+                t1 = time.perf_counter()
+                res = tiles.run_tiled(name, source=src, client=client, tiles=tile,
+                                      scratch=scratch, params=PARAMS.get(name))
+                t_run = time.perf_counter() - t1
+                t2 = time.perf_counter()
+                stream.write_streamed(spec, path, dst, res.fields)
+                t_out = time.perf_counter() - t2
+                st, h = res.stats, res.h
+                res = src = None  # the memory maps close before the folder goes
             peaks = _worker_peak_rss(client)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    st = res.stats
     serial = t_in + st["time_index"] + st["time_driver"] + t_out
     wall = t_in + t_run + t_out
     return {"filter": name, "n": n, "workers": workers, "wall_s": wall, "ingest_s": t_in,
             "index_s": st["time_index"], "passes_s": st["time_passes"],
             "driver_s": st["time_driver"], "write_s": t_out, "serial_s": serial,
-            "tiles": st["tiles"], "halo_max_h": st["halo_max"] / res.h,
+            "tiles": st["tiles"], "halo_max_h": st["halo_max"] / h,
             "repeats": {k: st[k] for k in ("denoise_runs", "greedy_passes") if k in st},
-            "peak_worker_rss_mb": peaks,
+            "peak_worker_rss_mb": peaks, "driver_peak_rss_mb": driver.rss,
+            "driver_peak_anon_mb": driver.anon,
             "s_per_million": wall / (n / 1e6)}
 
 
@@ -251,7 +284,12 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
         growth.append({"filter": r["filter"], "n": r["n"], "n0": base["n"],
                        "rss_ratio": max(r["peak_worker_rss_mb"]) /
                        max(base["peak_worker_rss_mb"]),
-                       "time_ratio": r["s_per_million"] / base["s_per_million"]})
+                       "time_ratio": r["s_per_million"] / base["s_per_million"],
+                       "driver_anon_ratio": r["driver_peak_anon_mb"] /
+                       base["driver_peak_anon_mb"],
+                       "driver_anon_b_per_pt": (r["driver_peak_anon_mb"] -
+                                                base["driver_peak_anon_mb"]) * 2**20 /
+                       (r["n"] - base["n"])})
     out = {"rows": rows, "summary": summary, "growth": growth, "knn16_s": knn, "tile": tile,
            "params": PARAMS,
            "cpus": os.cpu_count()}
@@ -271,14 +309,18 @@ def _markdown(out: dict) -> str:
              f"processes (1 thread each, each pinned to a core of its own) on a "
              f"{out['cpus']}-core machine; the one-piece run uses every core.  Wall time includes the streamed read into the scratch memory map, the "
              "tile index, the exact h pass, the filter's passes and the streamed write.", "",
+             "Driver memory is sampled every 50 ms: all of it and, in brackets, its "
+             "anonymous part (the rest are pages of the scratch memory maps and the "
+             "files, which the kernel writes back and drops as memory runs short).", "",
              "| filter | points | workers | tiles | wall s | s / 10⁶ pts | serial s | "
-             "peak RSS per worker MB | widest halo (h) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "peak RSS per worker MB | driver peak MB (anonymous) | widest halo (h) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in out["rows"]:
         what = "" if r.get("cloud", "terrain") == "terrain" else f" ({r['cloud']})"
         lines.append(f"| {r['filter']}{what} | {r['n']:,} | {r['workers']} | {r['tiles']} | "
                      f"{r['wall_s']:.1f} | {r['s_per_million']:.1f} | {r['serial_s']:.1f} | "
                      f"{', '.join(f'{p:.0f}' for p in r['peak_worker_rss_mb'])} | "
+                     f"{r['driver_peak_rss_mb']:.0f} ({r['driver_peak_anon_mb']:.0f}) | "
                      f"{r['halo_max_h']:.0f} |")
     lines += ["", "| filter | points | one piece s | one piece × one 16-NN pass | "
               "speed-up 1→2 workers | serial fraction | "
@@ -291,12 +333,15 @@ def _markdown(out: dict) -> str:
                      f"{s['proj_1e9_32_h']:.2f} | {s['proj_1e9_256_h']:.2f} |")
     if out.get("growth"):
         lines += ["", "Against N (2 workers, same tile size): the larger cloud's peak RSS "
-                  "per worker and time per 10⁶ points over those of the smaller.", "",
-                  "| filter | points | vs points | peak RSS per worker, ratio | "
-                  "s / 10⁶ pts, ratio |", "|---|---|---|---|---|"]
+                  "per worker, time per 10⁶ points and the driver's anonymous peak over "
+                  "those of the smaller, and the driver's anonymous bytes per added point.",
+                  "", "| filter | points | vs points | peak RSS per worker, ratio | "
+                  "s / 10⁶ pts, ratio | driver anonymous, ratio | "
+                  "driver anonymous, B per added point |", "|---|---|---|---|---|---|---|"]
         for g in out["growth"]:
             lines.append(f"| {g['filter']} | {g['n']:,} | {g['n0']:,} | "
-                         f"{g['rss_ratio']:.2f} | {g['time_ratio']:.2f} |")
+                         f"{g['rss_ratio']:.2f} | {g['time_ratio']:.2f} | "
+                         f"{g['driver_anon_ratio']:.2f} | {g['driver_anon_b_per_pt']:.0f} |")
     lines += ["", "Projection (Amdahl): T(P) = S·(10⁹/n) + (W − S)·(10⁹/n)/P, with S the "
               "serial seconds and W the wall seconds of the 1-worker run at n points.  "
               "Assumed: the serial part (streamed read and write, index, driver) runs at "

@@ -8,7 +8,9 @@ array in a scratch folder (``ingest``); a uniform grid over its bounding box
 cuts it into tiles of about ``target`` core points (``TileIndex``); every tile
 is sent with the points of its box grown by a halo of ``w`` (its *extended*
 region) to a Dask worker, which runs the filter's tile function and returns the
-results of its core rows.  Every row lies in exactly one core.
+results of its core rows.  Every row lies in exactly one core.  The driver
+gathers the per-row results into memory maps in the same folder
+(``_Runner.store``), so its own memory does not grow with the cloud.
 
 Exactness.  A filter declares how many times a point's result reads its
 neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
@@ -38,7 +40,7 @@ import math
 import os
 import shutil
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -304,13 +306,48 @@ def _submit(client, fn, *args, **kwargs):
 
 class _Runner:
     """One pass over the tiles: submit, collect, re-run a tile whose halo was
-    too narrow with a wider one, and check that every core row came once."""
+    too narrow with a wider one, and check that every core row came once.
+    ``store`` gives the per-row arrays the driver gathers."""
 
-    def __init__(self, client, src: Source, index: TileIndex, on_result=None):
+    def __init__(self, client, src: Source, index: TileIndex, scratch: str, on_result=None):
         self.client, self.src, self.index = client, src, index
-        self.on_result = on_result
+        self.scratch, self.on_result = scratch, on_result
         self.halo = {}  # cell -> the halo that proved wide enough
         self.times = {}  # pass label -> wall seconds
+        self.passes = 0
+        self.cell = None  # the cell whose result ``collect`` is given
+
+    def store(self, name: str, shape, dtype=np.float64) -> np.ndarray:
+        """A zero-filled memory map ``scratch/name.npy``: every per-row array
+        the driver keeps lives on disk, so that the driver's own memory does not
+        grow with the cloud (the kernel writes its pages back and drops them as
+        memory runs short).  Whole-cloud reductions read it in place, so they
+        give the one-piece run's values to the last bit."""
+        path = os.path.join(self.scratch, name + ".npy")
+        if os.path.exists(path):
+            raise RuntimeError(f"tiles: scratch array {name!r} is taken")
+        shape = (shape,) if np.isscalar(shape) else tuple(shape)
+        return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+
+    def on_disk(self, name: str, values: np.ndarray) -> np.ndarray:
+        """``values`` copied into ``store(name)``, chunk by chunk (the
+        temporary that made them is freed by the caller)."""
+        out = self.store(name, values.shape, values.dtype)
+        for s0 in range(0, len(values), CHUNK):
+            out[s0:s0 + CHUNK] = values[s0:s0 + CHUNK]
+        return out
+
+    def map(self, name: str | None, fn, *arrays, dtype=np.float64, out=None) -> np.ndarray:
+        """``fn(*chunks)`` over row chunks of ``arrays`` into ``store(name)``
+        (or into ``out``): for element-wise rules, whose values do not depend
+        on the chunking."""
+        n = len(arrays[0])
+        for s0 in range(0, n, CHUNK):
+            part = fn(*(np.asarray(a[s0:s0 + CHUNK]) for a in arrays))
+            if out is None:
+                out = self.store(name, (n,) + part.shape[1:], dtype)
+            out[s0:s0 + len(part)] = part
+        return out
 
     def run(self, label: str, fn, halo: float, args: dict, collect, per_tile=None) -> None:
         """``fn(points, lo, hi, core, **args, **per_tile(rows, core))`` on every
@@ -326,7 +363,8 @@ class _Runner:
         cells = [int(c) for c in self.index.cells]
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
-        seen = np.zeros(self.src.n, dtype=np.int8)
+        self.passes += 1
+        seen = self.store(f"seen-{self.passes}", self.src.n, np.int8)
         queue = list(cells)
         limit = IN_FLIGHT * max(1, len(self.client.scheduler_info()["workers"]))
         futures = as_completed()
@@ -359,16 +397,22 @@ class _Runner:
                 else:
                     self.halo[c] = width[c]
                     seen[rows[core]] += 1
+                    self.cell = c
                     collect(rows, core, res)
                     advance()
                     if self.on_result is not None:
                         self.on_result(label, c)
                 submit()
         self.times[label] = self.times.get(label, 0.0) + time.perf_counter() - t0
-        if not (seen == 1).all():
-            bad = np.flatnonzero(seen != 1)[:10].tolist()
-            raise RuntimeError(f"{label}: rows {bad} were written {sorted(set(seen[bad]))} "
-                               "times")
+        for s0 in range(0, self.src.n, CHUNK):
+            part = np.asarray(seen[s0:s0 + CHUNK])
+            if not (part == 1).all():
+                bad = (np.flatnonzero(part != 1)[:10] + s0).tolist()
+                raise RuntimeError(f"{label}: rows {bad} were written "
+                                   f"{sorted(set(seen[bad].tolist()))} times")
+        path, seen = seen.filename, None
+        with suppress(OSError):  # where a mapped file cannot be removed, rmtree does it later
+            os.remove(path)
 
 
 # ---------------------------------------------------------------------------
@@ -446,6 +490,11 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         of ``workers`` processes with ``memory_budget`` each.
     tiles : "auto" or int
         Core points per tile (``auto``: from the memory budget).
+    scratch : str, optional
+        A folder for the positions, the tile index and every per-row array the
+        driver gathers (memory maps), which then stay there and are what
+        ``fields`` holds; without one, a temporary folder is used and removed,
+        and ``fields`` come back as arrays in memory.
     on_result : callable, optional
         ``on_result(pass_label, cell)`` after each tile's result (tests).
     grid_side : float, optional
@@ -474,17 +523,20 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             t_index = time.perf_counter() - t0
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
-            runner = _Runner(cl, source, index, on_result)
+            runner = _Runner(cl, source, index, scratch, on_result)
             h = _fit_spacing(runner, source, index)
             family = _FAMILIES[spec.command]
             t1 = time.perf_counter()
-            out = family(runner, source, normals, h, resolved, scratch)
+            out = family(runner, source, normals, h, resolved)
             total = time.perf_counter() - t1 + runner.times["spacing"]
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
                              time_driver=total - sum(runner.times.values()),
                              tiles=len(index.cells), grid_side=index.side,
                              grid_shape=index.shape, target=target,
                              halo_max=max(runner.halo.values()) if runner.halo else 0.0)
+            if own:  # the scratch folder goes: the fields come back as arrays
+                out.fields = {k: np.array(v) if isinstance(v, np.memmap) else v
+                              for k, v in out.fields.items()}
             return out
     finally:
         if own:
@@ -504,7 +556,7 @@ def _spec(registry, name: str):
 
 def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     """h over the whole cloud from every row's mean 6-NN distance (pass 1)."""
-    rows6 = np.zeros(src.n)
+    rows6 = runner.store("spacing", src.n)
 
     def collect(rows, core, res):
         rows6[rows[core]] = res["rows"][core]
@@ -519,10 +571,10 @@ def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     return h
 
 
-def _outliers(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _outliers(runner, src, normals, h, prm) -> TiledResult:
     from .specs.outliers import tile_hops
 
-    score = np.zeros(src.n)
+    score = runner.store("outlier_score", src.n)
 
     def collect(rows, core, res):
         score[rows[core]] = res["score"][core]
@@ -537,11 +589,13 @@ def _outliers(runner, src, normals, h, prm, scratch) -> TiledResult:
     else:
         threshold = float(prm["min_neighbors"])
         out = score < threshold
-    return TiledResult({"keep_idx": np.flatnonzero(~out), "removed_idx": np.flatnonzero(out),
-                        "score": score}, h, {"threshold": threshold, "passes": 2})
+    keep_idx = runner.on_disk("keep_idx", np.flatnonzero(~out))
+    removed_idx = runner.on_disk("removed_idx", np.flatnonzero(out))
+    return TiledResult({"keep_idx": keep_idx, "removed_idx": removed_idx, "score": score}, h,
+                       {"threshold": threshold, "passes": 2})
 
 
-def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _denoise(runner, src, normals, h, prm) -> TiledResult:
     """Tiled denoise: the inner loop's cloud-wide decisions follow a plan
     (empty at first) and past it each tile's own answer; the sums every tile
     reports are added and the decisions replayed; at the first a tile took
@@ -550,9 +604,9 @@ def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
 
     hops = tile_hops(prm)
     n = src.n
-    pos = np.zeros((n, 3))
-    nrm = np.zeros((n, 3))
-    score = np.zeros(n)
+    pos = runner.store("points", (n, 3))
+    nrm = runner.store("normals", (n, 3))
+    score = runner.store("edge_score", n)
     plan: list = []
     runs = 0
     while True:
@@ -565,7 +619,7 @@ def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
             nrm[rows[core]] = res["normals"][core]
             score[rows[core]] = res["edge_score"][core]
             traces.append(res["trace"])
-            align.append(_halo_sample(rows, core, res))
+            align.append(_halo_sample(runner.cell, rows, core, res))
 
         args = dict(centre=src.centre, h=h, n_total=n, hops=hops, plan=tuple(plan), **prm)
         given = None if normals is None else np.asarray(normals, dtype=np.float64)
@@ -579,7 +633,7 @@ def _denoise(runner, src, normals, h, prm, scratch) -> TiledResult:
     flips = 0
     if normals is None:
         flips = _align_signs(runner, src, nrm, align)
-    edge = score < prm["edge_threshold"]
+    edge = runner.map("edge_mask", lambda v: v < prm["edge_threshold"], score, dtype=bool)
     return TiledResult({"points": pos, "normals": nrm, "edge_mask": edge, "edge_score": score},
                        h, {"passes": 1 + runs, "denoise_runs": runs, "decisions": len(traces[0])
                            if traces else 0, "tiles_flipped": flips})
@@ -613,13 +667,15 @@ def _replay(traces, plan, n: int, tol: float):
     return None
 
 
-def _halo_sample(rows, core, res, most: int = 4096):
-    """Rows outside the core whose result is exact, with the tile's normals:
-    the overlap two tiles' orientations are compared on."""
+def _halo_sample(cell, rows, core, res, most: int = 4096):
+    """The tile's cell and its rows outside the core whose result is exact,
+    with the tile's normals: the overlap two tiles' orientations are compared
+    on.  (The cell stands for its core rows, read again from the index when
+    needed, so that the driver does not hold every row's number.)"""
     keep = np.flatnonzero(res["sure"] & ~core)
     if len(keep) > most:
         keep = keep[np.linspace(0, len(keep) - 1, most).astype(np.int64)]
-    return rows[core], rows[keep], res["normals"][keep]
+    return cell, rows[keep], res["normals"][keep]
 
 
 def _align_signs(runner, src, nrm, align) -> int:
@@ -632,9 +688,10 @@ def _align_signs(runner, src, nrm, align) -> int:
     from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
     t = len(align)
-    owner = np.full(src.n, -1, dtype=np.int64)
-    for i, (core_rows, _, _) in enumerate(align):
-        owner[core_rows] = i
+    owner = runner.store(f"owner-{runner.passes}", src.n, np.int64)
+    owner[:] = -1
+    for i, (cell, _, _) in enumerate(align):
+        owner[runner.index.core_rows(cell)] = i
     vi, vj, vv = [], [], []
     for i, (_, rows, nn) in enumerate(align):
         if len(rows) == 0:
@@ -661,13 +718,13 @@ def _align_signs(runner, src, nrm, align) -> int:
                                           return_predecessors=True)
         for v in order[1:]:
             flip[v] = flip[pred[v]] * (1.0 if m[v, pred[v]] >= 0 else -1.0)
-    for i, (core_rows, _, _) in enumerate(align):
+    for i, (cell, _, _) in enumerate(align):
         if flip[i] < 0:
-            nrm[core_rows] *= -1.0
+            nrm[runner.index.core_rows(cell)] *= -1.0
     return int((flip < 0).sum())
 
 
-def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _saliency(runner, src, normals, h, prm) -> TiledResult:
     """Tiled saliency: a pass of sums gives F̄_g (the normal block after the
     tiles' orientations are made to agree); the coding pass gives the raw
     residuals and accumulations; the cloud-wide maxima normalise them."""
@@ -676,7 +733,7 @@ def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
     from .specs.saliency import tile_hops
 
     n = src.n
-    nrm = np.zeros((n, 3))
+    nrm = runner.store("normals", (n, 3))
     sums, align, cells = [], [], []
 
     first = []
@@ -685,8 +742,8 @@ def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
         nrm[rows[core]] = res["normals"][core]
         first.append(res["normals"][np.flatnonzero(core)[0]].copy())
         sums.append(res["sum"])
-        align.append(_halo_sample(rows, core, res))
-        cells.append(rows[core])
+        align.append(_halo_sample(runner.cell, rows, core, res))
+        cells.append(int(rows[np.flatnonzero(core)[0]]))
 
     base = dict(centre=src.centre, h=h, n_total=n, **prm)
     hops = tile_hops(prm)
@@ -695,13 +752,13 @@ def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
                collect_mean)
     _align_signs(runner, src, nrm, align)
     tot = np.zeros(4)
-    for i, rows in enumerate(cells):  # the tile's sums in the aligned signs
-        sg = float(np.sign(nrm[rows[0]] @ first[i]))
+    for i, row in enumerate(cells):  # the tile's sums in the aligned signs
+        sg = float(np.sign(nrm[row] @ first[i]))
         tot += np.r_[sg * sums[i][:3], sums[i][3]]
     fbar_g = tot / n
-    resid = np.zeros(n)
-    sparsity = np.zeros(n, dtype=np.int64)
-    acc = np.zeros(n)
+    resid = runner.store("residual", n)
+    sparsity = runner.store("sparsity", n, np.int64)
+    acc = runner.store("accumulated", n)
 
     def collect_code(rows, core, res):
         resid[rows[core]] = res["residual"][core]
@@ -715,12 +772,18 @@ def _saliency(runner, src, normals, h, prm, scratch) -> TiledResult:
     runner.run("saliency code", saliency_tile, halo,
                dict(base, stage="code", hops=hops, fbar_mean=fbar_g), collect_code, reference)
     top_r = float(resid.max())
-    s_t = resid / top_r if top_r > 0 else np.zeros(n)
-    if prm["measure"] == "mdl":
-        top_s = float(sparsity.max())
-        s_t = (sparsity / top_s if top_s > 0 else np.zeros(n)) * s_t
+    top_s = float(sparsity.max()) if prm["measure"] == "mdl" else None
     top_a = float(acc.max())
-    sal = acc / top_a if top_a > 0 else np.zeros(n)
+
+    def ratio(v, top):
+        return v / top if top > 0 else np.zeros(len(v))
+
+    if top_s is None:
+        s_t = runner.map("neighbourhood_saliency", lambda r: ratio(r, top_r), resid)
+    else:
+        s_t = runner.map("neighbourhood_saliency",
+                         lambda s, r: ratio(s, top_s) * ratio(r, top_r), sparsity, resid)
+    sal = runner.map("saliency", lambda a: ratio(a, top_a), acc)
     return TiledResult({"saliency": sal, "neighbourhood_saliency": s_t, "sparsity": sparsity,
                         "residual": resid, "normals": nrm}, h, {"passes": 3})
 
@@ -740,11 +803,10 @@ def _knn_reach(k: int) -> float:
     return 1.5 * math.sqrt(k)
 
 
-def _feature_store(scratch: str, d: int, n: int) -> np.ndarray:
+def _feature_store(runner: _Runner, d: int, n: int) -> np.ndarray:
     """A (d, n) float64 memory map for every row's features, column by column
     so that the per-column statistics read contiguous memory."""
-    return np.lib.format.open_memmap(os.path.join(scratch, "features.npy"), mode="w+",
-                                     dtype=np.float64, shape=(d, n))
+    return runner.store("features", (d, n))
 
 
 def _score_task(F, model, cfg):
@@ -770,7 +832,7 @@ def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
         model = fit_score_model(F, cfg)
         advance()
     t1 = time.perf_counter()
-    score = np.empty(n)  # noqa: NPY-empty -- every chunk written below
+    score = runner.store("score", n)
 
     def collect(s0, part):
         score[s0:s0 + len(part)] = part
@@ -813,7 +875,7 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
     runner.times[label] = time.perf_counter() - t0
 
 
-def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _sharp(runner, src, normals, h, prm) -> TiledResult:
     """Tiled sharp features: the features of every row by tiles (a halo of the
     largest scale), the score as in ``_scores``, the threshold from every
     score, the noise level and sampling type from every row, then the gate and
@@ -822,10 +884,10 @@ def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
 
     cfg, stage = sharp.split_params(prm)
     n = src.n
-    Fc = _feature_store(scratch, 4 * stage.n_scales, n)
-    nrm = np.zeros((n, 3))
-    ridge_pd = np.zeros(n)
-    nearest = np.zeros(n)
+    Fc = _feature_store(runner, 4 * stage.n_scales, n)
+    nrm = runner.store("normals", (n, 3))
+    ridge_pd = runner.store("ridge_pd", n)
+    nearest = runner.store("nearest", n)
 
     def collect(rows, core, res):
         r = rows[core]
@@ -841,10 +903,9 @@ def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
                                        sharp.DEFAULT_RULES)
     score = _scores(runner, Fc, stage)
     T = sharp.threshold(score, cfg, sharp.DEFAULT_RULES)
-    mask = score > T                                              # (7.11)
-    ridge = score * ridge_pd
-    ridge_pd = None  # freed: the gates read ``ridge``
-    final = np.zeros(n, dtype=bool)
+    mask = runner.map("score_mask", lambda v: v > T, score, dtype=bool)       # (7.11)
+    ridge = runner.map("ridge", np.multiply, score, ridge_pd)
+    final = runner.store("mask", n, bool)
 
     def collect_gates(rows, core, res):
         final[rows[core]] = res["mask"]
@@ -856,11 +917,12 @@ def _sharp(runner, src, normals, h, prm, scratch) -> TiledResult:
                                    "ridge": ridge[rows]})
     log.info("features: threshold %.4g; %d of %d points after the gate and the "
              "localisation", T, int(final.sum()), n)
-    return TiledResult({"mask": final, "score": score, "quality": final.astype(np.float64)},
+    quality = runner.map("quality", lambda v: v.astype(np.float64), final)
+    return TiledResult({"mask": final, "score": score, "quality": quality},
                        h, {"threshold": T, "passes": 5, "noise": sigma, "regular": regular})
 
 
-def _holes(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _holes(runner, src, normals, h, prm) -> TiledResult:
     """Tiled hole boundaries: the features and the point-wise quantities of
     every row by tiles, the score as in ``_scores``, the threshold and the
     point-wise tests from every row; the border chains (support, smallest
@@ -872,9 +934,9 @@ def _holes(runner, src, normals, h, prm, scratch) -> TiledResult:
     cfg, stage = holes.split_params(prm)
     rules = holes.DEFAULT_RULES
     n = src.n
-    Fc = _feature_store(scratch, 3 * stage.n_scales, n)
-    cols = {c: np.zeros(n) for c in ("extent", "variation", "shift_mean", "border_distance",
-                                     "gap", "nearest")}
+    Fc = _feature_store(runner, 3 * stage.n_scales, n)
+    cols = {c: runner.store(c, n) for c in ("extent", "variation", "shift_mean",
+                                            "border_distance", "gap", "nearest")}
 
     def collect(rows, core, res):
         r = rows[core]
@@ -895,7 +957,9 @@ def _holes(runner, src, normals, h, prm, scratch) -> TiledResult:
     mask, T = holes.select_borders(lambda rows: np.asarray(src.xyz[rows]) - centre, score,
                                    feats, cols["border_distance"] if rules.rim_distance
                                    else None, lambda: cols["gap"], cfg, rules)
-    return TiledResult({"mask": mask, "score": score, "quality": mask.astype(np.float64)},
+    mask = runner.on_disk("mask", mask)
+    quality = runner.map("quality", lambda v: v.astype(np.float64), mask)
+    return TiledResult({"mask": mask, "score": score, "quality": quality},
                        h, {"threshold": T, "passes": 4})
 
 
@@ -917,7 +981,7 @@ def _code_task(F, D, alpha):
     return code_rows(F, D, alpha)
 
 
-def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
+def _simplify(runner, src, normals, h, prm) -> TiledResult:
     """Tiled SDBS: the PCA features of every row by tiles; the feature scales,
     the K-SVD dictionary (on the seeded row subsample of a one-piece run) and
     the maxima of (6.10) on the driver; the Lasso codes in row chunks on the
@@ -937,9 +1001,9 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
     target = sd.target_count(prm["ratio"], prm["count"], n, "simplify_sdbs")
     k = prm["k"]
     centre = _chunked_mean(src.xyz)
-    nrm = np.zeros((n, 3))
-    sigma = np.zeros(n)
-    rows6 = np.zeros(n)
+    nrm = runner.store("normals", (n, 3))
+    sigma = runner.store("sigma", n)
+    rows6 = runner.store("rows6", n)
 
     def collect(rows, core, res):
         r = rows[core]
@@ -954,8 +1018,7 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
     t0 = time.perf_counter()
     P = _Centred(src.xyz, centre)
     scales = sd.feature_scales(sigma, P, prm["feature_scale"])
-    F = np.lib.format.open_memmap(os.path.join(scratch, "sdbs_features.npy"), mode="w+",
-                                  dtype=np.float64, shape=(n, 7))
+    F = runner.store("sdbs_features", (n, 7))
     for s0 in range(0, n, CHUNK):
         F[s0:s0 + CHUNK] = sd.scale_features(nrm[s0:s0 + CHUNK], sigma[s0:s0 + CHUNK],
                                              P[s0:s0 + CHUNK], prm["feature_scale"], scales)
@@ -967,22 +1030,24 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
         advance()
     log.info("simplify: scales and dictionary on the driver in %.1f s (serial)",
              time.perf_counter() - t0)
-    nnz = np.zeros(n, dtype=np.int64)
-    res = np.zeros(n)
+    nnz = runner.store("nnz", n, np.int64)
+    res = runner.store("residual", n)
 
     def collect_codes(s0, part):
         nnz[s0:s0 + len(part[0])], res[s0:s0 + len(part[1])] = part
 
     _map_rows(runner, "simplify codes", _code_task, n, lambda s0, e: np.array(F[s0:e]), D,
               prm["alpha"], collect_codes)
-    score = sd.normalised_saliency(nnz, res)
-    unit = hs * (np.maximum(rows6, 1e-3 * hs) / hs) ** prm["density_adapt"]
-    inv = 1.0 / np.maximum(score, prm["sf_floor"])
+    score = runner.on_disk("score", sd.normalised_saliency(nnz, res))
+    unit = runner.map("unit", lambda r: hs * (np.maximum(r, 1e-3 * hs) / hs)
+                      ** prm["density_adapt"], rows6)
+    inv = runner.map("inverse_score", lambda v: 1.0 / np.maximum(v, prm["sf_floor"]), score)
     trials = []
+    rho = runner.store("rho", n)  # one trial's radii at a time
 
     def run(dl):
-        rho = dl * unit * inv
-        keep = np.zeros(n, dtype=bool)
+        runner.map(None, lambda u, v: dl * u * v, unit, inv, out=rho)
+        keep = runner.store(f"keep-{len(trials)}", n, bool)
 
         def collect_keep(rows, core, res):
             keep[rows[core]] = res["keep"]
@@ -995,7 +1060,7 @@ def _simplify(runner, src, normals, h, prm, scratch) -> TiledResult:
         return keep
 
     out = sd.removal(run, score, nnz, res, hs, n, target, prm["delta"], inv)
-    return TiledResult({"keep_idx": out.keep_idx, "score": score}, hs,
+    return TiledResult({"keep_idx": runner.on_disk("keep_idx", out.keep_idx), "score": score}, hs,
                        {"delta": out.delta, "greedy_passes": len(trials),
                         "n_greedy": out.n_greedy, "passes": 2 + len(trials)})
 

@@ -84,6 +84,23 @@ def test_outliers_identical(client, method):
     assert np.array_equal(res.fields["score"], ref.score)
 
 
+def test_driver_keeps_per_row_results_on_disk(client, tmp_path):
+    # with a scratch folder every per-row field is a memory map in it (the
+    # driver's memory does not grow with the cloud); without one, arrays
+    ref = remove_outliers(CLOUD)
+    res = tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500,
+                          scratch=str(tmp_path))
+    for name, v in res.fields.items():
+        assert isinstance(v, np.memmap), name
+        assert os.path.dirname(os.path.abspath(v.filename)) == str(tmp_path), name
+    assert np.array_equal(res.fields["removed_idx"], ref.removed_idx)
+    assert np.array_equal(res.fields["score"], ref.score)
+    assert not [f for f in os.listdir(tmp_path) if f.startswith("seen")]  # pass checks gone
+    own = tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500)
+    assert not any(isinstance(v, np.memmap) for v in own.fields.values())
+    assert np.array_equal(own.fields["keep_idx"], ref.keep_idx)
+
+
 def test_rows_on_seams_belong_to_one_core(client):
     # a third of the points moved exactly onto the grid's cell faces
     g = np.random.default_rng(2)
