@@ -64,7 +64,8 @@ def test_denoise_with_normals_keeps_their_orientation(client):
     assert np.abs(res.fields["normals"] - ref.normals).max() <= 1e-9
 
 
-def test_saliency_equals_one_piece(client):
+def test_saliency_equals_one_piece(client, monkeypatch):
+    monkeypatch.setattr(tiles, "CHUNK", 5000)  # the driver's element-wise maps in chunks
     pts = CLOUD[:12_000]
     ref = saliency_sparse_mdl(pts)
     res = tiles.run_tiled("saliency", pts, client=client, tiles=2000)
@@ -84,9 +85,12 @@ def test_outliers_identical(client, method):
     assert np.array_equal(res.fields["score"], ref.score)
 
 
-def test_driver_keeps_per_row_results_on_disk(client, tmp_path):
+def test_driver_keeps_per_row_results_on_disk(client, tmp_path, monkeypatch):
     # with a scratch folder every per-row field is a memory map in it (the
-    # driver's memory does not grow with the cloud); without one, arrays
+    # driver's memory does not grow with the cloud); without one, arrays.  The
+    # driver's chunk is cut to 3000 rows so that its chunked loops (ingest,
+    # index, the written-once check, the copies to disk) run over many chunks
+    monkeypatch.setattr(tiles, "CHUNK", 3000)
     ref = remove_outliers(CLOUD)
     res = tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500,
                           scratch=str(tmp_path))
