@@ -325,7 +325,8 @@ class _Runner:
         give the one-piece run's values to the last bit."""
         path = os.path.join(self.scratch, name + ".npy")
         if os.path.exists(path):
-            raise RuntimeError(f"tiles: scratch array {name!r} is taken")
+            raise InvalidParameterError(f"scratch folder {self.scratch} already holds "
+                                        f"{name}.npy (from another run?); give an empty one")
         shape = (shape,) if np.isscalar(shape) else tuple(shape)
         return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
 

@@ -11,6 +11,7 @@ import pytest
 
 distributed = pytest.importorskip("dask.distributed", reason="needs pcprep[scale]")
 
+from pcprep.filters._validation import InvalidParameterError  # noqa: E402
 from pcprep.filters.denoise import denoise_l1_tv  # noqa: E402
 from pcprep.filters.outliers import remove_outliers  # noqa: E402
 from pcprep.filters.saliency import saliency_sparse_mdl  # noqa: E402
@@ -100,6 +101,9 @@ def test_driver_keeps_per_row_results_on_disk(client, tmp_path, monkeypatch):
     assert np.array_equal(res.fields["removed_idx"], ref.removed_idx)
     assert np.array_equal(res.fields["score"], ref.score)
     assert not [f for f in os.listdir(tmp_path) if f.startswith("seen")]  # pass checks gone
+    with pytest.raises(InvalidParameterError, match="already holds"):  # never overwritten
+        tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500, scratch=str(tmp_path))
+    assert np.array_equal(res.fields["score"], ref.score)
     own = tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500)
     assert not any(isinstance(v, np.memmap) for v in own.fields.values())
     assert np.array_equal(own.fields["keep_idx"], ref.keep_idx)
