@@ -3,7 +3,8 @@ bench_scale.py
 --------------
 ``pcprep bench scale``: tiled runs (meshlab_bridge/tiles.py) of generated
 airborne-like LAZ clouds through the tiled filters, on local Dask clusters of
-1 and 2 worker processes: wall time by stage, peak memory per worker, speed-up,
+1 and 2 worker processes, each run in a fresh process: wall time by stage, peak
+memory per worker and of the driver (its anonymous part apart), speed-up,
 time per million points, the serial fraction (streamed ingest, tile index,
 driver work between passes, streamed write) and, from it, the projected time of
 a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report);
