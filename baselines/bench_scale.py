@@ -4,7 +4,8 @@ bench_scale.py
 ``pcprep bench scale``: tiled runs (meshlab_bridge/tiles.py) of generated
 airborne-like LAZ clouds through the tiled filters, on local Dask clusters of
 1 and 2 worker processes, each run in a fresh process: wall time by stage, peak
-memory per worker and of the driver (its anonymous part apart), speed-up,
+memory per worker and of the driver (its anonymous part apart), the scratch
+folder's size, speed-up,
 time per million points, the serial fraction (streamed ingest, tile index,
 driver work between passes, streamed write) and, from it, the projected time of
 a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report);
@@ -207,6 +208,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
                 stream.write_streamed(spec, path, dst, res.fields)
                 t_out = time.perf_counter() - t2
                 st, h = res.stats, res.h
+                disk = sum(e.stat().st_size for e in os.scandir(scratch) if e.is_file())
                 res = src = None  # the memory maps close before the folder goes
             peaks = _worker_peak_rss(client)
     finally:
@@ -219,7 +221,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
             "tiles": st["tiles"], "halo_max_h": st["halo_max"] / h,
             "repeats": {k: st[k] for k in ("denoise_runs", "greedy_passes") if k in st},
             "peak_worker_rss_mb": peaks, "driver_peak_rss_mb": driver.rss,
-            "driver_peak_anon_mb": driver.anon,
+            "driver_peak_anon_mb": driver.anon, "scratch_b_per_pt": disk / n,
             "s_per_million": wall / (n / 1e6)}
 
 
@@ -330,15 +332,16 @@ def _markdown(out: dict) -> str:
              "both include the interpreter, the imports and one streamed chunk of "
              "the write (2²⁰ rows with every attribute).", "",
              "| filter | points | workers | tiles | wall s | s / 10⁶ pts | serial s | "
-             "peak RSS per worker MB | driver peak MB (anonymous) | widest halo (h) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "peak RSS per worker MB | driver peak MB (anonymous) | scratch disk B / pt | "
+             "widest halo (h) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in out["rows"]:
         what = "" if r.get("cloud", "terrain") == "terrain" else f" ({r['cloud']})"
         lines.append(f"| {r['filter']}{what} | {r['n']:,} | {r['workers']} | {r['tiles']} | "
                      f"{r['wall_s']:.1f} | {r['s_per_million']:.1f} | {r['serial_s']:.1f} | "
                      f"{', '.join(f'{p:.0f}' for p in r['peak_worker_rss_mb'])} | "
                      f"{r['driver_peak_rss_mb']:.0f} ({r['driver_peak_anon_mb']:.0f}) | "
-                     f"{r['halo_max_h']:.0f} |")
+                     f"{r['scratch_b_per_pt']:.0f} | {r['halo_max_h']:.0f} |")
     lines += ["", "| filter | points | one piece s | one piece × one 16-NN pass | "
               "speed-up 1→2 workers | serial fraction | "
               "× one 16-NN pass (1 worker, tiled) | 10⁹ pts on 32 workers (h) | "
