@@ -735,16 +735,15 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
 
     n = src.n
     nrm = runner.store("normals", (n, 3))
-    sums, align, cells = [], [], []
-
-    first = []
+    sums, align, cells, first = [], [], [], []
 
     def collect_mean(rows, core, res):
         nrm[rows[core]] = res["normals"][core]
-        first.append(res["normals"][np.flatnonzero(core)[0]].copy())
+        i0 = int(np.flatnonzero(core)[0])  # the tile's first core row
+        first.append(res["normals"][i0].copy())
+        cells.append(int(rows[i0]))
         sums.append(res["sum"])
         align.append(_halo_sample(runner.cell, rows, core, res))
-        cells.append(int(rows[np.flatnonzero(core)[0]]))
 
     base = dict(centre=src.centre, h=h, n_total=n, **prm)
     hops = tile_hops(prm)
