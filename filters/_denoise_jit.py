@@ -10,7 +10,8 @@ sphere projection.
 Each kernel computes rows ``s:e`` of its pass, one point at a time, with the
 same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` and
 ``_denoise_project.py`` (which runs when ``_kernels.ENABLED`` is False; the
-tests compare the two).  A point's neighbour terms are recomputed from the
+tests compare the two), except that sums run in another order and the
+exponentials come from ``_exp_into`` (within 2 ulp of libm).  A point's neighbour terms are recomputed from the
 positions instead of being gathered into (rows, k) arrays, which is what the
 NumPy passes spend most of their time on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
 them on every core.
@@ -20,14 +21,71 @@ from __future__ import annotations
 
 import numpy as np
 
+import math
+
 from ._denoise_kernels import GUARD, TAU_IRLS
 from ._kernels import HAVE_NUMBA, _jit
+
+#: exp's argument reduction x = n·ln 2 + r: log2(e), and ln 2 split so that
+#: n·LN2_HI is exact for |n| < 2¹¹ (fdlibm's constants)
+_LOG2E = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+#: 1.5·2⁵²: x·log2(e) + _SHIFT rounds x·log2(e) to the nearest integer n, whose
+#: two's complement then sits in the low bits of the sum
+_SHIFT = 6755399441055744.0
+_SHIFT_BITS = int(np.array([_SHIFT]).view(np.int64)[0])
+#: Taylor coefficients 1/k! of exp(r) on |r| ≤ ln 2 / 2 (truncation < 1e-17)
+_C = tuple(1.0 / math.factorial(j) for j in range(14))
 
 if HAVE_NUMBA:
     from ._kernels import _sym3_eig_into  # the closed form shared with the moments
 
+    _C0, _C1, _C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9, _C10, _C11, _C12, _C13 = _C
+
     @_jit(inline="always")
-    def _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside):
+    def _exp_into(a, m, bits):
+        """a[:m] ← exp(a[:m]) in place, within 2 ulp of libm's exp (0 below
+        −745.2, as libm).  ``bits`` is int64 scratch of shape (3, ≥ m).
+
+        Every weight of the energy (4.5) and its steps is an exponential (θ, ψ,
+        the TV weights, V_n (4.17)), and one libm call costs about as much as
+        the rest of a neighbour's term.  Written as three branch-free loops over
+        a row's neighbours (reduction and polynomial, the exponent's bits, the
+        scaling), LLVM vectorises them, which it cannot do for calls to libm.
+        The scale 2ⁿ is applied as two factors so that results below 2⁻¹⁰²²
+        round once, to the subnormal libm gives.  Arguments must be finite."""
+        f = bits.view(np.float64)
+        for j in range(m):
+            x = min(max(a[j], -746.0), 709.0)
+            t = x * _LOG2E + _SHIFT
+            nf = t - _SHIFT
+            r = (x - nf * _LN2_HI) - nf * _LN2_LO
+            r2 = r * r
+            r4 = r2 * r2
+            s0 = (_C0 + _C1 * r) + (_C2 + _C3 * r) * r2
+            s1 = (_C4 + _C5 * r) + (_C6 + _C7 * r) * r2
+            s2 = (_C8 + _C9 * r) + (_C10 + _C11 * r) * r2
+            s3 = _C12 + _C13 * r
+            f[2, j] = t
+            a[j] = (s0 + s1 * r4) + (s2 + s3 * r4) * (r4 * r4)
+        for j in range(m):
+            n = bits[2, j] - _SHIFT_BITS
+            n1 = n >> 1
+            bits[0, j] = (n1 + 1023) << 52
+            bits[1, j] = (n - n1 + 1023) << 52
+        for j in range(m):
+            a[j] = a[j] * f[0, j] * f[1, j]
+
+    @_jit()
+    def exp_rows(a):
+        """exp of a 1-D array by ``_exp_into`` (for the tests)."""
+        out = a.copy()
+        _exp_into(out, len(out), np.empty((3, len(out)), np.int64))
+        return out
+
+    @_jit(inline="always")
+    def _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits):
         """The neighbours of row i inside the radius, in column order: their
         indices q, D = p_i − p_j, |D|² and θ; ``inside`` flags every column.
         Returns their count.  Every term of the energy (4.5) and of its steps
@@ -50,15 +108,17 @@ if HAVE_NUMBA:
             d[m, 1] = d1
             d[m, 2] = dz
             d2[m] = s
-            theta[m] = np.exp(s * inv_sd2)
+            theta[m] = s * inv_sd2
             m += 1
+        _exp_into(theta, m, bits)
         return m
 
     @_jit()
     def _scratch(k):
-        """Per-call work arrays of the row kernels."""
+        """Per-call work arrays of the row kernels: q, d, d2, θ, inside and the
+        exponentials' buffer and bits."""
         return (np.empty(k, np.int64), np.empty((k, 3)), np.empty(k), np.empty(k),
-                np.empty(k, np.bool_))
+                np.empty(k, np.bool_), np.empty(k), np.empty((3, k), np.int64))
 
     @_jit(inline="always")
     def _eta1(res, psi, theta):
@@ -69,14 +129,17 @@ if HAVE_NUMBA:
         return psi * theta / a
 
     @_jit(inline="always")
-    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps):
+    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps, ex, bits):
         """IRLS weighted L1-median of the heights (4.14) from ``tau``."""
         for _ in range(n_steps):
+            for j in range(k):
+                r = hgt[j] - tau
+                ex[j] = r * r * inv_sh2
+            _exp_into(ex, k, bits)
             den = 0.0
             num = 0.0
             for j in range(k):
-                r = hgt[j] - tau
-                et = _eta1(r, np.exp(r * r * inv_sh2), theta[j])
+                et = _eta1(hgt[j] - tau, ex[j], theta[j])
                 den += et
                 num += et * hgt[j]
             if den > 0:
@@ -90,56 +153,61 @@ if HAVE_NUMBA:
         (normals, τ); with ``propose`` the next state, with ``want_vn`` V_n and
         the height fit (a, c)."""
         k = idx.shape[1]
-        q, d, d2, theta, inside = _scratch(k)
+        q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         res = np.empty(k)
         psi = np.empty(k)
+        res0 = np.empty(k)
+        psi0 = np.empty(k)
         al = np.empty((k, 3))
         w = np.empty(k)
         inv_sh2 = -1.0 / sh2
         inv_cn = 1.0 / (1.0 - cos_n)
         inv_sn = -1.0 / (2.0 * sn2)
         for i in range(s, e):
-            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
             t_i = tau[i]
             fid = 0.0
             tv = 0.0
             cnt = m - 1.0  # the point itself adds no TV term
-            for j in range(m):
+            for j in range(m):  # exponents of ψ and of the TV weights
                 h = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
                 hgt[j] = h
                 r = h - t_i
                 res[j] = r
-                p = np.exp(r * r * inv_sh2)
-                psi[j] = p
-                fid += abs(r) * p * theta[j]
+                psi[j] = r * r * inv_sh2
                 c = q[j]
                 m0, m1, m2 = normals[c, 0], normals[c, 1], normals[c, 2]
                 dot = m0 * n0 + m1 * n1 + m2 * n2
                 if dot < 0:
                     m0, m1, m2 = -m0, -m1, -m2
                 al[j, 0], al[j, 1], al[j, 2] = m0, m1, m2
-                if j == 0:
-                    w[j] = 0.0
-                    continue
                 u = (1.0 - abs(dot)) * inv_cn
-                wj = np.exp(-(u * u))
-                w[j] = wj
+                w[j] = -(u * u)
+            _exp_into(psi, m, bits)
+            _exp_into(w, m, bits)
+            w[0] = 0.0
+            for j in range(m):
+                fid += abs(res[j]) * psi[j] * theta[j]
+            for j in range(1, m):
+                m0, m1, m2 = al[j, 0], al[j, 1], al[j, 2]
                 if l1:
                     dist = abs(n0 - m0) + abs(n1 - m1) + abs(n2 - m2)
                 else:
                     dist = np.sqrt((n0 - m0) ** 2 + (n1 - m1) ** 2 + (n2 - m2) ** 2)
-                tv += dist * wj
+                tv += dist * w[j]
             energy[i] = fid + lam * tv
             if want_vn:
+                for j in range(1, m):
+                    ex[j] = ((n0 - al[j, 0]) ** 2 + (n1 - al[j, 1]) ** 2
+                             + (n2 - al[j, 2]) ** 2) * inv_sn
+                _exp_into(ex[1:], m - 1, bits)
                 acc = 0.0
+                for j in range(1, m):
+                    acc += ex[j]
                 s0 = s1 = s2 = b0 = b1 = 0.0
                 for j in range(m):
-                    if j > 0:
-                        diff2 = ((n0 - al[j, 0]) ** 2 + (n1 - al[j, 1]) ** 2
-                                 + (n2 - al[j, 2]) ** 2)
-                        acc += np.exp(diff2 * inv_sn)
                     et = _eta1(res[j], psi[j], theta[j])
                     rho2 = max(d2[j] - hgt[j] * hgt[j], 0.0)
                     s0 += et
@@ -166,19 +234,21 @@ if HAVE_NUMBA:
                 num += et * hgt[j]
             t_new = num / den if den > 0 else t_i
             if t_new != t_i:
+                for j in range(m):
+                    res0[j] = res[j]
+                    psi0[j] = psi[j]
+                    r = hgt[j] - t_new
+                    res[j] = r  # the state at the new τ, for the normal step
+                    psi[j] = r * r * inv_sh2
+                _exp_into(psi, m, bits)
                 f_new = 0.0
                 for j in range(m):
-                    r = hgt[j] - t_new
-                    p = np.exp(r * r * inv_sh2)
-                    f_new += abs(r) * p * theta[j]
-                    res[j] = r  # the state at the new τ, for the normal step
-                    psi[j] = p
+                    f_new += abs(res[j]) * psi[j] * theta[j]
                 if f_new > fid:  # back to τ_i
                     t_new = t_i
                     for j in range(m):
-                        r = hgt[j] - t_i
-                        res[j] = r
-                        psi[j] = np.exp(r * r * inv_sh2)
+                        res[j] = res0[j]
+                        psi[j] = psi0[j]
             new_t[i] = t_new
             # normal step (4.10)-(4.12) at the new τ
             lip = 0.0
@@ -220,14 +290,14 @@ if HAVE_NUMBA:
     def eigen_rows(x, idx, normals, tau, s, e, r2, sd2, sh2, first, out_n, out_t):
         """Rows s:e of one pass of (4.9) (``_denoise_steps._eigen_pass``)."""
         k = idx.shape[1]
-        q, d, d2, theta, inside = _scratch(k)
+        q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         om = np.empty(k)
         lam = np.empty((1, 1, 3))
         vec = np.empty((1, 1, 3))
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
-            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             if first:  # θ-weighted PCA about the weighted mean
                 ws = 0.0
                 for j in range(m):
@@ -243,10 +313,13 @@ if HAVE_NUMBA:
                 n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
                 for j in range(m):
                     hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
-                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS)
+                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS, ex, bits)
                 for j in range(m):
                     r = hgt[j] - t
-                    om[j] = _eta1(r, np.exp(r * r * inv_sh2), theta[j])
+                    ex[j] = r * r * inv_sh2
+                _exp_into(ex, m, bits)
+                for j in range(m):
+                    om[j] = _eta1(hgt[j] - t, ex[j], theta[j])
                 m0, m1, m2 = t * n0, t * n1, t * n2
             c00 = c01 = c02 = c11 = c12 = c22 = 0.0
             for j in range(m):
@@ -268,11 +341,11 @@ if HAVE_NUMBA:
         and those of the neighbours ``cols`` (inside the radius), the one of
         lowest Welsch loss Σ θ(1 − ψ), with τ by (4.14) from 0."""
         k = idx.shape[1]
-        q, d, d2, theta, inside = _scratch(k)
+        q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
-            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             best = np.inf
             bq = i
             bt = 0.0
@@ -286,11 +359,14 @@ if HAVE_NUMBA:
                 n0, n1, n2 = normals[p, 0], normals[p, 1], normals[p, 2]
                 for j in range(m):
                     hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
-                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS)
-                loss = 0.0
+                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS, ex, bits)
                 for j in range(m):
                     r = hgt[j] - t
-                    loss += (1.0 - np.exp(r * r * inv_sh2)) * theta[j]
+                    ex[j] = r * r * inv_sh2
+                _exp_into(ex, m, bits)
+                loss = 0.0
+                for j in range(m):
+                    loss += (1.0 - ex[j]) * theta[j]
                 if loss < best:
                     best, bq, bt = loss, p, t
             out_n[i, 0], out_n[i, 1], out_n[i, 2] = (normals[bq, 0], normals[bq, 1],
@@ -301,9 +377,9 @@ if HAVE_NUMBA:
     def curvature_rows(x, idx, normals, curv, s, e, r2, sd2, out):
         """Rows s:e of ``_denoise_steps._smooth_curvature``: the θ-weighted mean
         of the neighbours' curvatures, each signed to agree with n_i."""
-        q, d, d2, theta, inside = _scratch(idx.shape[1])
+        q, d, d2, theta, inside, ex, bits = _scratch(idx.shape[1])
         for i in range(s, e):
-            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             num = 0.0
             den = 0.0
             for j in range(m):
@@ -318,21 +394,25 @@ if HAVE_NUMBA:
     def sphere_rows(x, idx, fit_n, s, e, r2, sd2, cos_n, n_steps, off, ok):
         """Rows s:e of ``_denoise_project._sphere_project``: the weighted
         algebraic sphere fit about p_i and the Newton steps onto it."""
-        q, d, d2, theta, inside = _scratch(idx.shape[1])
+        q, d, d2, theta, inside, ex, bits = _scratch(idx.shape[1])
         inv_cn = 1.0 / (1.0 - cos_n)
         for i in range(s, e):
-            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside)
+            m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             r0, r1, r2_ = fit_n[i, 0], fit_n[i, 1], fit_n[i, 2]
+            for j in range(m):
+                c = q[j]
+                dot = fit_n[c, 0] * r0 + fit_n[c, 1] * r1 + fit_n[c, 2] * r2_
+                u = (1.0 - abs(dot)) * inv_cn
+                ex[j] = -(u * u)
+            _exp_into(ex, m, bits)
             s0 = qq = qn = 0.0
             mq0 = mq1 = mq2 = mn0 = mn1 = mn2 = 0.0
             for j in range(m):
                 c = q[j]
                 b0, b1, b2 = fit_n[c, 0], fit_n[c, 1], fit_n[c, 2]
-                dot = b0 * r0 + b1 * r1 + b2 * r2_
-                if dot < 0:
+                if b0 * r0 + b1 * r1 + b2 * r2_ < 0:
                     b0, b1, b2 = -b0, -b1, -b2
-                u = (1.0 - abs(dot)) * inv_cn
-                w = np.exp(-(u * u)) * theta[j]
+                w = ex[j] * theta[j]
                 p0, p1, p2 = -d[j, 0], -d[j, 1], -d[j, 2]  # p_j − p_i
                 s0 += w
                 mq0 += w * p0

@@ -178,6 +178,29 @@ def test_compiled_and_numpy_passes_agree(noisy_cube, monkeypatch, kwargs):
         assert a.n_corrected > 0  # the correction ran on both paths
 
 
+def test_compiled_exp_is_within_two_ulp_of_libm():
+    """The kernels' exponential (filters/_denoise_jit._exp_into) against NumPy's
+    over the arguments the energy produces, the underflow to subnormals and
+    zero, and exact points."""
+    from pcprep.filters import _denoise_jit, _kernels
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(5)
+    edges = [0.0, -0.0, -1e-300, -0.5 * np.log(2), -np.log(2), -1.0, -708.0, -708.5,
+             -744.0, -745.0, -745.2, -746.0, -1e4, 1.0, 5.0, 700.0, 709.0]
+    x = np.concatenate([-rng.random(200_000) * 60.0, -rng.random(50_000) * 1e-6,
+                        -rng.random(50_000) * 760.0, rng.random(10_000) * 700.0, edges])
+    got = _denoise_jit.exp_rows(x)
+    ref = np.exp(x)
+    normal = ref >= np.finfo(float).tiny
+    ulp = np.abs(got - ref)[normal] / np.spacing(ref[normal])
+    assert ulp.max() <= 2.0
+    assert np.abs(got - ref)[~normal].max() <= np.finfo(float).smallest_subnormal
+    assert got[x < -745.2].max() == 0.0 and got[x == 0.0].min() == 1.0
+    assert np.mean(got == ref) > 0.5  # most values exact, not merely close
+
+
 def test_thesis_l1_norm_is_reachable(noisy_cube):
     _, noisy = noisy_cube
     a = denoise_l1_tv(noisy[:1500], n_iter=2, tv_norm="l1")
