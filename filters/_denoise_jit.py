@@ -104,9 +104,9 @@ if HAVE_NUMBA:
             if not inside[j]:
                 continue
             q[m] = p
-            d[m, 0] = d0
-            d[m, 1] = d1
-            d[m, 2] = dz
+            d[0, m] = d0
+            d[1, m] = d1
+            d[2, m] = dz
             d2[m] = s
             theta[m] = s * inv_sd2
             m += 1
@@ -117,7 +117,7 @@ if HAVE_NUMBA:
     def _scratch(k):
         """Per-call work arrays of the row kernels: q, d, d2, θ, inside and the
         exponentials' buffer and bits."""
-        return (np.empty(k, np.int64), np.empty((k, 3)), np.empty(k), np.empty(k),
+        return (np.empty(k, np.int64), np.empty((3, k)), np.empty(k), np.empty(k),
                 np.empty(k, np.bool_), np.empty(k), np.empty((3, k), np.int64))
 
     @_jit(inline="always")
@@ -129,19 +129,67 @@ if HAVE_NUMBA:
         return psi * theta / a
 
     @_jit(inline="always")
-    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps, ex, bits):
-        """IRLS weighted L1-median of the heights (4.14) from ``tau``."""
+    def _sum4(v, s, m):
+        """Σ v[s:m] as four interleaved partial sums, added (a0 + a1) + (a2 + a3).
+
+        A fixed order, written out, so that every machine gives the same bits
+        (numba's fastmath would let LLVM pick the order by the CPU's vector
+        width), with four independent additions per step instead of one
+        chain, which is what bounds a sum of a few dozen terms."""
+        a0 = a1 = a2 = a3 = 0.0
+        j = s
+        while j + 4 <= m:
+            a0 += v[j]
+            a1 += v[j + 1]
+            a2 += v[j + 2]
+            a3 += v[j + 3]
+            j += 4
+        while j < m:
+            a0 += v[j]
+            j += 1
+        return (a0 + a1) + (a2 + a3)
+
+    @_jit(inline="always")
+    def _dot4(u, v, s, m):
+        """Σ u[j]·v[j] over s ≤ j < m, in the order of ``_sum4``."""
+        a0 = a1 = a2 = a3 = 0.0
+        j = s
+        while j + 4 <= m:
+            a0 += u[j] * v[j]
+            a1 += u[j + 1] * v[j + 1]
+            a2 += u[j + 2] * v[j + 2]
+            a3 += u[j + 3] * v[j + 3]
+            j += 4
+        while j < m:
+            a0 += u[j] * v[j]
+            j += 1
+        return (a0 + a1) + (a2 + a3)
+
+    @_jit(inline="always")
+    def _eta_into(res, psi, theta, m, eta):
+        """eta[:m] ← η of every neighbour (``_eta1``), one branch-free loop."""
+        for j in range(m):
+            eta[j] = _eta1(res[j], psi[j], theta[j])
+
+    @_jit(inline="always")
+    def _fid_terms(res, psi, theta, m, out):
+        """out[:m] ← |h − τ|·ψ·θ, the fidelity terms of (4.5)."""
+        for j in range(m):
+            out[j] = abs(res[j]) * psi[j] * theta[j]
+
+    @_jit(inline="always")
+    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps, ex, bits, eta):
+        """IRLS weighted L1-median of the heights (4.14) from ``tau``; ``ex``,
+        ``bits`` and ``eta`` are scratch."""
         for _ in range(n_steps):
             for j in range(k):
                 r = hgt[j] - tau
                 ex[j] = r * r * inv_sh2
             _exp_into(ex, k, bits)
-            den = 0.0
-            num = 0.0
             for j in range(k):
-                et = _eta1(hgt[j] - tau, ex[j], theta[j])
-                den += et
-                num += et * hgt[j]
+                eta[j] = _eta1(hgt[j] - tau, ex[j], theta[j])
+            den = _sum4(eta, 0, k)
+            num = _dot4(eta, hgt, 0, k)
             if den > 0:
                 tau = num / den
         return tau
@@ -159,7 +207,11 @@ if HAVE_NUMBA:
         psi = np.empty(k)
         res0 = np.empty(k)
         psi0 = np.empty(k)
-        al = np.empty((k, 3))
+        eta = np.empty(k)
+        t0 = np.empty(k)
+        t1 = np.empty(k)
+        al = np.empty((3, k))
+        ee = np.empty((3, k))
         w = np.empty(k)
         inv_sh2 = -1.0 / sh2
         inv_cn = 1.0 / (1.0 - cos_n)
@@ -168,11 +220,9 @@ if HAVE_NUMBA:
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
             t_i = tau[i]
-            fid = 0.0
-            tv = 0.0
             cnt = m - 1.0  # the point itself adds no TV term
             for j in range(m):  # exponents of ψ and of the TV weights
-                h = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
+                h = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
                 hgt[j] = h
                 r = h - t_i
                 res[j] = r
@@ -182,39 +232,41 @@ if HAVE_NUMBA:
                 dot = m0 * n0 + m1 * n1 + m2 * n2
                 if dot < 0:
                     m0, m1, m2 = -m0, -m1, -m2
-                al[j, 0], al[j, 1], al[j, 2] = m0, m1, m2
+                al[0, j], al[1, j], al[2, j] = m0, m1, m2
                 u = (1.0 - abs(dot)) * inv_cn
                 w[j] = -(u * u)
             _exp_into(psi, m, bits)
             _exp_into(w, m, bits)
             w[0] = 0.0
-            for j in range(m):
-                fid += abs(res[j]) * psi[j] * theta[j]
+            _fid_terms(res, psi, theta, m, t0)
+            fid = _sum4(t0, 0, m)
             for j in range(1, m):
-                m0, m1, m2 = al[j, 0], al[j, 1], al[j, 2]
+                e0, e1, e2 = n0 - al[0, j], n1 - al[1, j], n2 - al[2, j]
                 if l1:
-                    dist = abs(n0 - m0) + abs(n1 - m1) + abs(n2 - m2)
+                    dist = abs(e0) + abs(e1) + abs(e2)
                 else:
-                    dist = np.sqrt((n0 - m0) ** 2 + (n1 - m1) ** 2 + (n2 - m2) ** 2)
-                tv += dist * w[j]
+                    dist = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+                t0[j] = dist * w[j]
+            tv = _sum4(t0, 1, m)
             energy[i] = fid + lam * tv
+            if not (want_vn or propose):
+                continue
+            _eta_into(res, psi, theta, m, eta)
             if want_vn:
                 for j in range(1, m):
-                    ex[j] = ((n0 - al[j, 0]) ** 2 + (n1 - al[j, 1]) ** 2
-                             + (n2 - al[j, 2]) ** 2) * inv_sn
+                    e0, e1, e2 = n0 - al[0, j], n1 - al[1, j], n2 - al[2, j]
+                    ex[j] = (e0 * e0 + e1 * e1 + e2 * e2) * inv_sn
                 _exp_into(ex[1:], m - 1, bits)
-                acc = 0.0
-                for j in range(1, m):
-                    acc += ex[j]
-                s0 = s1 = s2 = b0 = b1 = 0.0
+                acc = _sum4(ex, 1, m)
                 for j in range(m):
-                    et = _eta1(res[j], psi[j], theta[j])
                     rho2 = max(d2[j] - hgt[j] * hgt[j], 0.0)
-                    s0 += et
-                    s1 += et * rho2
-                    s2 += et * rho2 * rho2
-                    b0 += et * hgt[j]
-                    b1 += et * rho2 * hgt[j]
+                    t0[j] = rho2
+                    t1[j] = eta[j] * rho2
+                s0 = _sum4(eta, 0, m)
+                s1 = _sum4(t1, 0, m)
+                s2 = _dot4(t1, t0, 0, m)
+                b0 = _dot4(eta, hgt, 0, m)
+                b1 = _dot4(t1, hgt, 0, m)
                 vnorm[i] = acc / cnt if cnt > 0 else 1.0
                 det = s0 * s2 - s1 * s1
                 if det > 1e-9 * max(s0 * s2, 1e-300):
@@ -226,12 +278,8 @@ if HAVE_NUMBA:
             if not propose:
                 continue
             # τ step (4.14), kept only if it does not raise the fidelity term
-            den = 0.0
-            num = 0.0
-            for j in range(m):
-                et = _eta1(res[j], psi[j], theta[j])
-                den += et
-                num += et * hgt[j]
+            den = _sum4(eta, 0, m)
+            num = _dot4(eta, hgt, 0, m)
             t_new = num / den if den > 0 else t_i
             if t_new != t_i:
                 for j in range(m):
@@ -241,32 +289,29 @@ if HAVE_NUMBA:
                     res[j] = r  # the state at the new τ, for the normal step
                     psi[j] = r * r * inv_sh2
                 _exp_into(psi, m, bits)
-                f_new = 0.0
-                for j in range(m):
-                    f_new += abs(res[j]) * psi[j] * theta[j]
+                _fid_terms(res, psi, theta, m, t0)
+                f_new = _sum4(t0, 0, m)
                 if f_new > fid:  # back to τ_i
                     t_new = t_i
                     for j in range(m):
                         res[j] = res0[j]
                         psi[j] = psi0[j]
+                else:
+                    _eta_into(res, psi, theta, m, eta)
             new_t[i] = t_new
             # normal step (4.10)-(4.12) at the new τ
-            lip = 0.0
-            g0 = g1 = g2 = 0.0
+            lip = _dot4(eta, d2, 0, m)
             for j in range(m):
-                et = _eta1(res[j], psi[j], theta[j])
-                lip += et * d2[j]
-                et *= res[j]
-                g0 += et * d[j, 0]
-                g1 += et * d[j, 1]
-                g2 += et * d[j, 2]
+                t1[j] = eta[j] * res[j]
+            g0 = _dot4(t1, d[0], 0, m)
+            g1 = _dot4(t1, d[1], 0, m)
+            g2 = _dot4(t1, d[2], 0, m)
             gamma = 1.0 / lip if lip > 0 else 0.0
             h0, h1, h2 = n0 - gamma * g0, n1 - gamma * g1, n2 - gamma * g2
             scale = gamma * lam * cnt
-            a0 = a1 = a2 = 0.0
             for j in range(1, m):
                 thr = w[j] * scale
-                e0, e1, e2 = h0 - al[j, 0], h1 - al[j, 1], h2 - al[j, 2]
+                e0, e1, e2 = h0 - al[0, j], h1 - al[1, j], h2 - al[2, j]
                 if l1:  # (4.12) per component: clip(d, ±t)
                     e0 = min(max(e0, -thr), thr)
                     e1 = min(max(e1, -thr), thr)
@@ -275,9 +320,10 @@ if HAVE_NUMBA:
                     ln = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
                     fac = min(thr / max(ln, 1e-30), 1.0)
                     e0, e1, e2 = e0 * fac, e1 * fac, e2 * fac
-                a0 += e0
-                a1 += e1
-                a2 += e2
+                ee[0, j], ee[1, j], ee[2, j] = e0, e1, e2
+            a0 = _sum4(ee[0], 1, m)
+            a1 = _sum4(ee[1], 1, m)
+            a2 = _sum4(ee[2], 1, m)
             c = max(cnt, 1.0)
             v0, v1, v2 = h0 - a0 / c, h1 - a1 / c, h2 - a2 / c
             nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
@@ -299,21 +345,18 @@ if HAVE_NUMBA:
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
             if first:  # θ-weighted PCA about the weighted mean
-                ws = 0.0
-                for j in range(m):
-                    ws += theta[j]
-                m0 = m1 = m2 = 0.0
+                ws = _sum4(theta, 0, m)
                 for j in range(m):
                     om[j] = theta[j] / ws
-                    m0 += om[j] * d[j, 0]
-                    m1 += om[j] * d[j, 1]
-                    m2 += om[j] * d[j, 2]
+                m0 = _dot4(om, d[0], 0, m)
+                m1 = _dot4(om, d[1], 0, m)
+                m2 = _dot4(om, d[2], 0, m)
                 t = 0.0
             else:  # about c_i = p_i − τ_i n_i, ω = ψθ/|h − τ|
                 n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
                 for j in range(m):
-                    hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
-                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS, ex, bits)
+                    hgt[j] = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
+                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS, ex, bits, om)
                 for j in range(m):
                     r = hgt[j] - t
                     ex[j] = r * r * inv_sh2
@@ -323,7 +366,7 @@ if HAVE_NUMBA:
                 m0, m1, m2 = t * n0, t * n1, t * n2
             c00 = c01 = c02 = c11 = c12 = c22 = 0.0
             for j in range(m):
-                q0, q1, q2 = d[j, 0] - m0, d[j, 1] - m1, d[j, 2] - m2
+                q0, q1, q2 = d[0, j] - m0, d[1, j] - m1, d[2, j] - m2
                 o = om[j]
                 c00 += o * q0 * q0
                 c01 += o * q0 * q1
@@ -343,6 +386,7 @@ if HAVE_NUMBA:
         k = idx.shape[1]
         q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
+        eta = np.empty(k)
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
@@ -358,15 +402,15 @@ if HAVE_NUMBA:
                     continue
                 n0, n1, n2 = normals[p, 0], normals[p, 1], normals[p, 2]
                 for j in range(m):
-                    hgt[j] = d[j, 0] * n0 + d[j, 1] * n1 + d[j, 2] * n2
-                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS, ex, bits)
+                    hgt[j] = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
+                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS, ex, bits, eta)
                 for j in range(m):
                     r = hgt[j] - t
                     ex[j] = r * r * inv_sh2
                 _exp_into(ex, m, bits)
-                loss = 0.0
                 for j in range(m):
-                    loss += (1.0 - ex[j]) * theta[j]
+                    eta[j] = (1.0 - ex[j]) * theta[j]
+                loss = _sum4(eta, 0, m)
                 if loss < best:
                     best, bq, bt = loss, p, t
             out_n[i, 0], out_n[i, 1], out_n[i, 2] = (normals[bq, 0], normals[bq, 1],
@@ -380,14 +424,13 @@ if HAVE_NUMBA:
         q, d, d2, theta, inside, ex, bits = _scratch(idx.shape[1])
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
-            num = 0.0
-            den = 0.0
             for j in range(m):
                 c = q[j]
                 dot = (normals[i, 0] * normals[c, 0] + normals[i, 1] * normals[c, 1]
                        + normals[i, 2] * normals[c, 2])
-                num += theta[j] * (-curv[c] if dot < 0 else curv[c])
-                den += theta[j]
+                ex[j] = theta[j] * (-curv[c] if dot < 0 else curv[c])
+            num = _sum4(ex, 0, m)
+            den = _sum4(theta, 0, m)
             out[i] = num / max(den, 1e-300)
 
     @_jit()
@@ -413,7 +456,7 @@ if HAVE_NUMBA:
                 if b0 * r0 + b1 * r1 + b2 * r2_ < 0:
                     b0, b1, b2 = -b0, -b1, -b2
                 w = ex[j] * theta[j]
-                p0, p1, p2 = -d[j, 0], -d[j, 1], -d[j, 2]  # p_j − p_i
+                p0, p1, p2 = -d[0, j], -d[1, j], -d[2, j]  # p_j − p_i
                 s0 += w
                 mq0 += w * p0
                 mq1 += w * p1
