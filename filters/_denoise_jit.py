@@ -85,32 +85,49 @@ if HAVE_NUMBA:
         return out
 
     @_jit(inline="always")
+    def _up(count):
+        """``count`` rounded up to a multiple of 16.  The per-neighbour loops
+        run over that many columns, so that their vectorised body (4 lanes ×
+        4 interleaved) covers every column and leaves no scalar remainder; the
+        columns past the count hold the point itself at distance 0 (finite
+        values, never summed), and every sum stops at the count."""
+        return (count + 15) // 16 * 16
+
+    @_jit(inline="always")
     def _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits):
         """The neighbours of row i inside the radius, in column order: their
         indices q, D = p_i − p_j, |D|² and θ; ``inside`` flags every column.
         Returns their count.  Every term of the energy (4.5) and of its steps
         carries θ or the radius mask, so the neighbours outside add exactly
         zero and are left out; column 0 (the point itself, at distance 0)
-        stays first."""
+        stays first.  Every column is written at slot m and m advances only
+        for those inside (no branch to mispredict); a slot written by one
+        outside is overwritten by the next column or by the padding."""
         inv_sd2 = -1.0 / sd2
         m = 0
+        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
         for j in range(idx.shape[1]):
             p = idx[i, j]
-            d0 = x[i, 0] - x[p, 0]
-            d1 = x[i, 1] - x[p, 1]
-            dz = x[i, 2] - x[p, 2]
+            d0 = x0 - x[p, 0]
+            d1 = x1 - x[p, 1]
+            dz = x2 - x[p, 2]
             s = d0 * d0 + d1 * d1 + dz * dz
-            inside[j] = s <= r2
-            if not inside[j]:
-                continue
+            ins = s <= r2
+            inside[j] = ins
             q[m] = p
             d[0, m] = d0
             d[1, m] = d1
             d[2, m] = dz
             d2[m] = s
             theta[m] = s * inv_sd2
-            m += 1
-        _exp_into(theta, m, bits)
+            m += 1 if ins else 0
+        mp = _up(m)
+        for j in range(m, mp):  # padding: the point itself, at distance 0
+            q[j] = i
+            d[0, j] = d[1, j] = d[2, j] = 0.0
+            d2[j] = 0.0
+            theta[j] = 0.0
+        _exp_into(theta, mp, bits)
         return m
 
     @_jit()
@@ -178,15 +195,15 @@ if HAVE_NUMBA:
             out[j] = abs(res[j]) * psi[j] * theta[j]
 
     @_jit(inline="always")
-    def _tau_irls1(hgt, theta, k, tau, inv_sh2, n_steps, ex, bits, eta):
+    def _tau_irls1(hgt, theta, k, kp, tau, inv_sh2, n_steps, ex, bits, eta):
         """IRLS weighted L1-median of the heights (4.14) from ``tau``; ``ex``,
         ``bits`` and ``eta`` are scratch."""
         for _ in range(n_steps):
-            for j in range(k):
+            for j in range(kp):
                 r = hgt[j] - tau
                 ex[j] = r * r * inv_sh2
-            _exp_into(ex, k, bits)
-            for j in range(k):
+            _exp_into(ex, kp, bits)
+            for j in range(kp):
                 eta[j] = _eta1(hgt[j] - tau, ex[j], theta[j])
             den = _sum4(eta, 0, k)
             num = _dot4(eta, hgt, 0, k)
@@ -200,7 +217,7 @@ if HAVE_NUMBA:
         """Rows s:e of ``_denoise_steps._inner_pass``: the energy of the state
         (normals, τ); with ``propose`` the next state, with ``want_vn`` V_n and
         the height fit (a, c)."""
-        k = idx.shape[1]
+        k = _up(idx.shape[1])
         q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         res = np.empty(k)
@@ -218,10 +235,11 @@ if HAVE_NUMBA:
         inv_sn = -1.0 / (2.0 * sn2)
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
+            mp = _up(m)
             n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
             t_i = tau[i]
             cnt = m - 1.0  # the point itself adds no TV term
-            for j in range(m):  # exponents of ψ and of the TV weights
+            for j in range(mp):  # exponents of ψ and of the TV weights
                 h = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
                 hgt[j] = h
                 r = h - t_i
@@ -235,12 +253,12 @@ if HAVE_NUMBA:
                 al[0, j], al[1, j], al[2, j] = m0, m1, m2
                 u = (1.0 - abs(dot)) * inv_cn
                 w[j] = -(u * u)
-            _exp_into(psi, m, bits)
-            _exp_into(w, m, bits)
+            _exp_into(psi, mp, bits)
+            _exp_into(w, mp, bits)
             w[0] = 0.0
-            _fid_terms(res, psi, theta, m, t0)
+            _fid_terms(res, psi, theta, mp, t0)
             fid = _sum4(t0, 0, m)
-            for j in range(1, m):
+            for j in range(mp):
                 e0, e1, e2 = n0 - al[0, j], n1 - al[1, j], n2 - al[2, j]
                 if l1:
                     dist = abs(e0) + abs(e1) + abs(e2)
@@ -251,14 +269,14 @@ if HAVE_NUMBA:
             energy[i] = fid + lam * tv
             if not (want_vn or propose):
                 continue
-            _eta_into(res, psi, theta, m, eta)
+            _eta_into(res, psi, theta, mp, eta)
             if want_vn:
-                for j in range(1, m):
+                for j in range(mp):
                     e0, e1, e2 = n0 - al[0, j], n1 - al[1, j], n2 - al[2, j]
                     ex[j] = (e0 * e0 + e1 * e1 + e2 * e2) * inv_sn
-                _exp_into(ex[1:], m - 1, bits)
+                _exp_into(ex, mp, bits)
                 acc = _sum4(ex, 1, m)
-                for j in range(m):
+                for j in range(mp):
                     rho2 = max(d2[j] - hgt[j] * hgt[j], 0.0)
                     t0[j] = rho2
                     t1[j] = eta[j] * rho2
@@ -282,26 +300,26 @@ if HAVE_NUMBA:
             num = _dot4(eta, hgt, 0, m)
             t_new = num / den if den > 0 else t_i
             if t_new != t_i:
-                for j in range(m):
+                for j in range(mp):
                     res0[j] = res[j]
                     psi0[j] = psi[j]
                     r = hgt[j] - t_new
                     res[j] = r  # the state at the new τ, for the normal step
                     psi[j] = r * r * inv_sh2
-                _exp_into(psi, m, bits)
-                _fid_terms(res, psi, theta, m, t0)
+                _exp_into(psi, mp, bits)
+                _fid_terms(res, psi, theta, mp, t0)
                 f_new = _sum4(t0, 0, m)
                 if f_new > fid:  # back to τ_i
                     t_new = t_i
-                    for j in range(m):
+                    for j in range(mp):
                         res[j] = res0[j]
                         psi[j] = psi0[j]
                 else:
-                    _eta_into(res, psi, theta, m, eta)
+                    _eta_into(res, psi, theta, mp, eta)
             new_t[i] = t_new
             # normal step (4.10)-(4.12) at the new τ
             lip = _dot4(eta, d2, 0, m)
-            for j in range(m):
+            for j in range(mp):
                 t1[j] = eta[j] * res[j]
             g0 = _dot4(t1, d[0], 0, m)
             g1 = _dot4(t1, d[1], 0, m)
@@ -309,7 +327,7 @@ if HAVE_NUMBA:
             gamma = 1.0 / lip if lip > 0 else 0.0
             h0, h1, h2 = n0 - gamma * g0, n1 - gamma * g1, n2 - gamma * g2
             scale = gamma * lam * cnt
-            for j in range(1, m):
+            for j in range(mp):
                 thr = w[j] * scale
                 e0, e1, e2 = h0 - al[0, j], h1 - al[1, j], h2 - al[2, j]
                 if l1:  # (4.12) per component: clip(d, ±t)
@@ -333,9 +351,23 @@ if HAVE_NUMBA:
                 new_n[i, 0], new_n[i, 1], new_n[i, 2] = n0, n1, n2
 
     @_jit()
+    def move_sq(x, t_new, n_new, t_old, n_old, out):
+        """out[i] ← |(p − τ'n') − (p − τn)|², summed over the coordinates in
+        order, as NumPy's row sum does."""
+        for i in range(len(x)):
+            acc = 0.0
+            for c in range(3):
+                a = (x[i, c] - t_new[i] * n_new[i, c]) - (x[i, c] - t_old[i] * n_old[i, c])
+                if c == 0:
+                    acc = a * a
+                else:
+                    acc += a * a
+            out[i] = acc
+
+    @_jit()
     def eigen_rows(x, idx, normals, tau, s, e, r2, sd2, sh2, first, out_n, out_t):
         """Rows s:e of one pass of (4.9) (``_denoise_steps._eigen_pass``)."""
-        k = idx.shape[1]
+        k = _up(idx.shape[1])
         q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         om = np.empty(k)
@@ -344,9 +376,10 @@ if HAVE_NUMBA:
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
+            mp = _up(m)
             if first:  # θ-weighted PCA about the weighted mean
                 ws = _sum4(theta, 0, m)
-                for j in range(m):
+                for j in range(mp):
                     om[j] = theta[j] / ws
                 m0 = _dot4(om, d[0], 0, m)
                 m1 = _dot4(om, d[1], 0, m)
@@ -354,14 +387,14 @@ if HAVE_NUMBA:
                 t = 0.0
             else:  # about c_i = p_i − τ_i n_i, ω = ψθ/|h − τ|
                 n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
-                for j in range(m):
+                for j in range(mp):
                     hgt[j] = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
-                t = _tau_irls1(hgt, theta, m, tau[i], inv_sh2, TAU_IRLS, ex, bits, om)
-                for j in range(m):
+                t = _tau_irls1(hgt, theta, m, mp, tau[i], inv_sh2, TAU_IRLS, ex, bits, om)
+                for j in range(mp):
                     r = hgt[j] - t
                     ex[j] = r * r * inv_sh2
-                _exp_into(ex, m, bits)
-                for j in range(m):
+                _exp_into(ex, mp, bits)
+                for j in range(mp):
                     om[j] = _eta1(hgt[j] - t, ex[j], theta[j])
                 m0, m1, m2 = t * n0, t * n1, t * n2
             c00 = c01 = c02 = c11 = c12 = c22 = 0.0
@@ -383,13 +416,14 @@ if HAVE_NUMBA:
         """Rows s:e of ``_denoise_steps._select_candidates``: of the own normal
         and those of the neighbours ``cols`` (inside the radius), the one of
         lowest Welsch loss Σ θ(1 − ψ), with τ by (4.14) from 0."""
-        k = idx.shape[1]
+        k = _up(idx.shape[1])
         q, d, d2, theta, inside, ex, bits = _scratch(k)
         hgt = np.empty(k)
         eta = np.empty(k)
         inv_sh2 = -1.0 / sh2
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
+            mp = _up(m)
             best = np.inf
             bq = i
             bt = 0.0
@@ -401,14 +435,14 @@ if HAVE_NUMBA:
                 else:
                     continue
                 n0, n1, n2 = normals[p, 0], normals[p, 1], normals[p, 2]
-                for j in range(m):
+                for j in range(mp):
                     hgt[j] = d[0, j] * n0 + d[1, j] * n1 + d[2, j] * n2
-                t = _tau_irls1(hgt, theta, m, 0.0, inv_sh2, TAU_IRLS, ex, bits, eta)
-                for j in range(m):
+                t = _tau_irls1(hgt, theta, m, mp, 0.0, inv_sh2, TAU_IRLS, ex, bits, eta)
+                for j in range(mp):
                     r = hgt[j] - t
                     ex[j] = r * r * inv_sh2
-                _exp_into(ex, m, bits)
-                for j in range(m):
+                _exp_into(ex, mp, bits)
+                for j in range(mp):
                     eta[j] = (1.0 - ex[j]) * theta[j]
                 loss = _sum4(eta, 0, m)
                 if loss < best:
@@ -421,10 +455,11 @@ if HAVE_NUMBA:
     def curvature_rows(x, idx, normals, curv, s, e, r2, sd2, out):
         """Rows s:e of ``_denoise_steps._smooth_curvature``: the θ-weighted mean
         of the neighbours' curvatures, each signed to agree with n_i."""
-        q, d, d2, theta, inside, ex, bits = _scratch(idx.shape[1])
+        q, d, d2, theta, inside, ex, bits = _scratch(_up(idx.shape[1]))
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
-            for j in range(m):
+            mp = _up(m)
+            for j in range(mp):
                 c = q[j]
                 dot = (normals[i, 0] * normals[c, 0] + normals[i, 1] * normals[c, 1]
                        + normals[i, 2] * normals[c, 2])
@@ -437,17 +472,18 @@ if HAVE_NUMBA:
     def sphere_rows(x, idx, fit_n, s, e, r2, sd2, cos_n, n_steps, off, ok):
         """Rows s:e of ``_denoise_project._sphere_project``: the weighted
         algebraic sphere fit about p_i and the Newton steps onto it."""
-        q, d, d2, theta, inside, ex, bits = _scratch(idx.shape[1])
+        q, d, d2, theta, inside, ex, bits = _scratch(_up(idx.shape[1]))
         inv_cn = 1.0 / (1.0 - cos_n)
         for i in range(s, e):
             m = _neigh(x, idx, i, r2, sd2, q, d, d2, theta, inside, bits)
+            mp = _up(m)
             r0, r1, r2_ = fit_n[i, 0], fit_n[i, 1], fit_n[i, 2]
-            for j in range(m):
+            for j in range(mp):
                 c = q[j]
                 dot = fit_n[c, 0] * r0 + fit_n[c, 1] * r1 + fit_n[c, 2] * r2_
                 u = (1.0 - abs(dot)) * inv_cn
                 ex[j] = -(u * u)
-            _exp_into(ex, m, bits)
+            _exp_into(ex, mp, bits)
             s0 = qq = qn = 0.0
             mq0 = mq1 = mq2 = mn0 = mn1 = mn2 = 0.0
             for j in range(m):

@@ -22,6 +22,10 @@ from .neighbors import SPACING_K, build_tree, centered, spacing_from_rows
 #: points per chunk of the neighbour passes (small blocks stay in the allocator's
 #: heap and in cache)
 CHUNK = 2048
+#: rows per task of the compiled row kernels: they allocate nothing per row, so
+#: larger tasks only cut the thread pool's overhead, whose Python side competes
+#: with the workers for the cores
+COMPILED_CHUNK = 16_384
 #: |h_j − τ| below GUARD (in units of h) uses η = θ instead of ψθ/|h_j − τ|
 GUARD = 1e-3
 #: points per chunk of the k-NN query
@@ -38,9 +42,10 @@ def _workers() -> int:
     return max(1, min(4, os.cpu_count() or 1))
 
 
-def _run_chunks(fn, n: int) -> list:
-    """Call ``fn(s, e)`` over [0, n) in chunks, on a thread pool; results in order."""
-    bounds = [(s, min(n, s + CHUNK)) for s in range(0, n, CHUNK)]
+def _run_chunks(fn, n: int, chunk: int = CHUNK) -> list:
+    """Call ``fn(s, e)`` over [0, n) in chunks of ``chunk`` rows, on a thread
+    pool; results in order."""
+    bounds = [(s, min(n, s + chunk)) for s in range(0, n, chunk)]
     nw = _workers()
     if nw == 1 or len(bounds) == 1:
         return [fn(s, e) for s, e in bounds]

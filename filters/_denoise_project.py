@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _denoise_jit, _kernels
-from ._denoise_kernels import (WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
+from ._denoise_kernels import (COMPILED_CHUNK, WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
                                _smallest_eigvec)
 
 #: Newton steps of the projection onto the fitted algebraic sphere
@@ -51,7 +51,8 @@ def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
     if _kernels.ENABLED:
         fn = np.ascontiguousarray(fit_n, dtype=np.float64)
         _run_chunks(lambda s, e: _denoise_jit.sphere_rows(
-            ctx.x, ctx.idx, fn, s, e, ctx.r2, ctx.sd2, ctx.cos_n, PROJ_STEPS, off, ok), n)
+            ctx.x, ctx.idx, fn, s, e, ctx.r2, ctx.sd2, ctx.cos_n, PROJ_STEPS, off, ok), n,
+            COMPILED_CHUNK)
         return off, ok
     ft = np.ascontiguousarray(fit_n.T, dtype=WORK)
 

@@ -15,7 +15,7 @@ from functools import partial
 import numpy as np
 
 from . import _denoise_jit, _kernels
-from ._denoise_kernels import (CHUNK, WORK, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
+from ._denoise_kernels import (CHUNK, COMPILED_CHUNK, WORK, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
                                _run_chunks, _smallest_eigvec, _tau_irls, _tv)
 
 #: init passes followed by the candidate selection
@@ -69,7 +69,7 @@ def _rows_pass(ctx: _Ctx, compiled, reference, normals, arg, *extra):
     out_t = np.empty(n)  # noqa: NPY-empty -- every chunk writes its rows
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
     _run_chunks(lambda s, e: compiled(ctx.x, ctx.idx, nrm, arg, s, e, ctx.r2, ctx.sd2,
-                                      ctx.sh2, *extra, out_n, out_t), n)
+                                      ctx.sh2, *extra, out_n, out_t), n, COMPILED_CHUNK)
     return out_n, out_t
 
 
@@ -158,9 +158,19 @@ def _rose(e_tot: float, before: float, sync) -> bool:
     return sync.decide("rise", e_tot, before, e_tot > before)
 
 
-def _settled(step: np.ndarray, tol: float, sync) -> bool:
-    """Is the RMS move of the tentative positions below ``tol``."""
-    sq = np.square(step).sum(axis=1)
+def _move_sq(ctx: _Ctx, n_new, t_new, n_old, t_old) -> np.ndarray:
+    """|(p − τ'n') − (p − τn)|² per point: the squared move of the tentative
+    positions between two states (one compiled pass, or NumPy)."""
+    if _kernels.ENABLED:
+        out = np.empty(len(ctx.x))  # noqa: NPY-empty -- every row written
+        _denoise_jit.move_sq(ctx.x, t_new, n_new, t_old, n_old, out)
+        return out
+    step = (ctx.x - t_new[:, None] * n_new) - (ctx.x - t_old[:, None] * n_old)
+    return np.square(step).sum(axis=1)
+
+
+def _settled(sq: np.ndarray, tol: float, sync) -> bool:
+    """Is the RMS of the squared moves ``sq`` below ``tol``."""
     if sync is None:
         return float(np.sqrt(np.mean(sq))) < tol
     a = float(sq[sync.core].sum())
@@ -192,10 +202,10 @@ def _inner_loop(ctx: _Ctx, nrm: np.ndarray, inner_iter: int, tol: float, sync=No
         hist.append(e_tot)
         if last:
             break
-        step = (ctx.x - t_next[:, None] * n_next) - (ctx.x - tau[:, None] * nrm)
+        sq = _move_sq(ctx, n_next, t_next, nrm, tau)
         prev = (nrm, tau)
         nrm, tau = n_next, t_next
-        if _settled(step, tol, sync):
+        if _settled(sq, tol, sync):
             e_i, _, _, vn = _inner_pass(ctx, nrm, tau, propose=False, vn=True)
             e_tot = _total(e_i, sync)
             if _rose(e_tot, hist[-1], sync):
@@ -233,7 +243,8 @@ def _inner_pass(ctx: _Ctx, normals: np.ndarray, tau: np.ndarray, propose: bool,
             ctx.x, ctx.idx, nrm, t0, s, e, ctx.r2, ctx.sd2, ctx.sh2, ctx.lam, ctx.cos_n,
             ctx.sn2, ctx.l1, propose, vn, energy, none3 if new_n is None else new_n,
             none1 if new_t is None else new_t, none1 if vnorm is None else vnorm,
-            none1 if offset is None else offset, none1 if curv is None else curv), n)
+            none1 if offset is None else offset, none1 if curv is None else curv), n,
+            COMPILED_CHUNK)
         return energy, new_n, new_t, (vnorm, offset, curv) if vn else None
     nt = np.ascontiguousarray(normals.T, dtype=WORK)
 
@@ -348,7 +359,7 @@ def _smooth_curvature(ctx: _Ctx, normals: np.ndarray, curv: np.ndarray) -> np.nd
         nrm = np.ascontiguousarray(normals, dtype=np.float64)
         c = np.ascontiguousarray(curv, dtype=np.float64)
         _run_chunks(lambda s, e: _denoise_jit.curvature_rows(
-            ctx.x, ctx.idx, nrm, c, s, e, ctx.r2, ctx.sd2, out), len(curv))
+            ctx.x, ctx.idx, nrm, c, s, e, ctx.r2, ctx.sd2, out), len(curv), COMPILED_CHUNK)
         return out
 
     def kernel(s, e):
