@@ -10,12 +10,11 @@ the pose of the cloud: a rotation changed it by up to 0.3 h).
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernels import run_chunks
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .neighbors import SPACING_K, build_tree, centered, spacing_from_rows
 
@@ -38,19 +37,9 @@ WORK = np.float64  # the working precision of the chunk kernels
 # ---------------------------------------------------------------------------
 # chunked, threaded execution
 
-def _workers() -> int:
-    return max(1, min(4, os.cpu_count() or 1))
-
-
 def _run_chunks(fn, n: int, chunk: int = CHUNK) -> list:
-    """Call ``fn(s, e)`` over [0, n) in chunks of ``chunk`` rows, on a thread
-    pool; results in order."""
-    bounds = [(s, min(n, s + chunk)) for s in range(0, n, chunk)]
-    nw = _workers()
-    if nw == 1 or len(bounds) == 1:
-        return [fn(s, e) for s, e in bounds]
-    with ThreadPoolExecutor(max_workers=nw) as ex:
-        return list(ex.map(lambda b: fn(*b), bounds))
+    """:func:`_kernels.run_chunks` with the NumPy passes' chunk by default."""
+    return run_chunks(fn, n, chunk)
 
 
 @dataclass

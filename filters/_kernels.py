@@ -27,6 +27,9 @@ install compiles for a few seconds, later processes load the cache.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 try:
@@ -39,6 +42,36 @@ HAVE_NUMBA = numba is not None
 #: the filters use the kernels when True; set it to False to run the NumPy
 #: reference implementations instead (the tests compare both)
 ENABLED = HAVE_NUMBA
+
+
+
+def threads() -> int:
+    """Threads for the row kernels: the cores this process may run on (its
+    affinity, so a worker pinned to one core runs one), at most 4."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
+#: rows per task of :func:`run_chunks` for kernels that allocate only per call:
+#: big enough that the pool's overhead is small, small enough to balance
+TASK_ROWS = 8192
+
+
+def run_chunks(fn, n: int, chunk: int) -> list:
+    """Call ``fn(s, e)`` over [0, n) in chunks of ``chunk`` rows on a thread
+    pool of :func:`threads` (the compiled kernels release the GIL); results in
+    order.  Every row's result depends on that row alone, so the chunking
+    changes nothing but the time."""
+    bounds = [(s, min(n, s + chunk)) for s in range(0, n, chunk)]
+    nw = threads()
+    if nw == 1 or len(bounds) == 1:
+        return [fn(s, e) for s, e in bounds]
+    with ThreadPoolExecutor(max_workers=nw) as ex:
+        return list(ex.map(lambda b: fn(*b), bounds))
+
 
 #: signals per work item (scratch arrays are allocated once per block)
 _BLOCK = 2048
@@ -558,36 +591,34 @@ if HAVE_NUMBA:
         return coef, conv, most
 
     @_jit()
-    def orient_edges(points, normals, nb, mirror):
-        """Edges of the k-NN graph of ``neighbors.orient_normals_mst``: each
-        undirected edge once (row i keeps neighbour j when i < j or when i is
-        not among j's neighbours), its cost 1 − |agreement| + 1e-6 as float32
-        and the sign of the agreement (the plain n_i·n_j, or with ``mirror`` the
-        chord-mirrored product when that is larger in magnitude)."""
-        n, m = nb.shape
-        keep = np.zeros((n, m), dtype=np.bool_)
-        cnt = 0
-        for i in range(n):
+    def orient_keep(nb, lo, hi, keep, per_row):
+        """Rows lo:hi of the edge choice of ``orient_edges``: row i keeps
+        neighbour j when i < j or when i is not among j's neighbours (each
+        undirected edge once); ``per_row`` counts the kept ones."""
+        m = nb.shape[1]
+        for i in range(lo, hi):
+            cnt = 0
             for k in range(m):
                 j = nb[i, k]
-                if i < j:
-                    keep[i, k] = True
-                    cnt += 1
-                    continue
                 mutual = False
-                for q in range(m):
-                    if nb[j, q] == i:
-                        mutual = True
-                        break
-                if not mutual:
-                    keep[i, k] = True
-                    cnt += 1
-        ei = np.empty(cnt, dtype=np.int64)
-        ej = np.empty(cnt, dtype=np.int64)
-        cost = np.empty(cnt, dtype=np.float32)
-        sign = np.empty(cnt, dtype=np.int8)
-        t = 0
-        for i in range(n):
+                if i >= j:
+                    for q in range(m):
+                        if nb[j, q] == i:
+                            mutual = True
+                            break
+                keep[i, k] = not mutual
+                cnt += 0 if mutual else 1
+            per_row[i] = cnt
+
+    @_jit()
+    def orient_emit(points, normals, nb, mirror, keep, start, lo, hi, ei, ej, cost, sign):
+        """Rows lo:hi of ``orient_edges``' output, row i's kept edges from
+        position start[i]: its ends, its cost 1 − |agreement| + 1e-6 as float32
+        and the sign of the agreement (the plain n_i·n_j, or with ``mirror``
+        the chord-mirrored product when that is larger in magnitude)."""
+        m = nb.shape[1]
+        for i in range(lo, hi):
+            t = start[i]
             for k in range(m):
                 if not keep[i, k]:
                     continue
@@ -610,7 +641,6 @@ if HAVE_NUMBA:
                 cost[t] = np.float32(1.0 - abs(agree) + 1e-6)
                 sign[t] = -1 if agree < 0.0 else 1
                 t += 1
-        return ei, ej, cost, sign
 
     @_jit(inline="always")
     def _find(parent, parity, i):
@@ -697,16 +727,14 @@ if HAVE_NUMBA:
         return -1.0 if v < 0.0 else 1.0
 
     @_jit()
-    def saliency_geometry(points, idx, count, r, n_rays):
-        """Per neighbourhood, in one pass: the PCA frame with data-fixed signs,
-        the quadric's Gaussian and total curvature, and the ray atoms; the
+    def saliency_geometry(points, idx, count, r, n_rays, lo, hi, frames, gauss, total,
+                          atoms):
+        """Rows lo:hi of the neighbourhoods, in one pass: the PCA frame with
+        data-fixed signs (into ``frames``), the quadric's Gaussian and total
+        curvature (``gauss``, ``total``) and the ray atoms (``atoms``); the
         compiled form of ``saliency.local_frames_and_curvature`` and
         ``saliency._ray_atoms`` (same rules, see there)."""
-        n, kmax = idx.shape
-        frames = np.zeros((n, 3, 3))
-        gauss = np.zeros(n)
-        total = np.zeros(n)
-        atoms = np.zeros((n, n_rays), dtype=np.int32)
+        kmax = idx.shape[1]
         ends = np.empty((n_rays, 2))
         for m in range(n_rays):
             th = 2.0 * np.pi * m / n_rays
@@ -722,7 +750,7 @@ if HAVE_NUMBA:
         q = np.empty(6)
         row = np.empty(6)
         sel = np.arange(6)
-        for i in range(n):
+        for i in range(lo, hi):
             c = count[i]
             m0 = 0.0
             m1 = 0.0
@@ -807,7 +835,6 @@ if HAVE_NUMBA:
                         best = d2
                         kb = k
                 atoms[i, m] = idx[i, kb]
-        return frames, gauss, total, atoms
 
     @_jit(inline="always")
     def _sym3_eig_into(a00, a01, a02, a11, a12, a22, lam, nrm, c, s):

@@ -177,8 +177,12 @@ def _compiled_chunk(x, D, lam, max_iter, tol, kkt_tol):
     whose iterate is kept as the NumPy solver keeps it)."""
     x = np.ascontiguousarray(x)
     D = np.ascontiguousarray(D)
-    a, ok, it = _kernels.lasso_stack(x, D, lam, int(max_iter), float(tol),
-                                     float(kkt_tol), False)
+    parts = _kernels.run_chunks(lambda s, e: _kernels.lasso_stack(
+        x[s:e], D[s:e], lam[s:e], int(max_iter), float(tol), float(kkt_tol), False),
+        len(x), _kernels.TASK_ROWS)
+    a = np.concatenate([q[0] for q in parts])
+    ok = np.concatenate([q[1] for q in parts])
+    it = max(q[2] for q in parts)
     open_ = np.flatnonzero(~ok)
     if 0 < len(open_) <= max(len(x) // 20, 64):
         a2, ok2, _ = _kernels.lasso_stack(x[open_], D[open_], lam[open_], int(max_iter),

@@ -391,6 +391,26 @@ def _highest(points, labels):
     return order[first]
 
 
+def _orient_edges(points, normals, nb, mirror):
+    """The k-NN graph's edges for :func:`_orient_compiled`, each undirected
+    edge once, in row order (``_kernels.orient_keep`` and ``orient_emit``,
+    by row blocks on the kernels' threads): ends, float32 cost, int8 sign."""
+    n, m = nb.shape
+    keep = np.empty((n, m), dtype=bool)  # noqa: NPY-empty -- every row written
+    per_row = np.empty(n, dtype=np.int64)  # noqa: NPY-empty -- every row written
+    _kernels.run_chunks(lambda s, e: _kernels.orient_keep(nb, s, e, keep, per_row), n,
+                        _kernels.TASK_ROWS)
+    start = np.zeros(n, dtype=np.int64)
+    np.cumsum(per_row[:-1], out=start[1:])
+    cnt = int(per_row.sum())
+    ei, ej = np.empty(cnt, dtype=np.int64), np.empty(cnt, dtype=np.int64)
+    cost, sign = np.empty(cnt, dtype=np.float32), np.empty(cnt, dtype=np.int8)
+    _kernels.run_chunks(lambda s, e: _kernels.orient_emit(
+        points, normals, nb, mirror, keep, start, s, e, ei, ej, cost, sign), n,
+        _kernels.TASK_ROWS)
+    return ei, ej, cost, sign
+
+
 def _orient_compiled(points, normals, nb, mirror):
     """The same orientation as :func:`orient_normals_mst`, compiled: Kruskal's
     forest over the edges sorted by cost, with a union-find that carries each
@@ -401,9 +421,8 @@ def _orient_compiled(points, normals, nb, mirror):
     contradicting agreements."""
     n = len(points)
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    ei, ej, cost, sign = _kernels.orient_edges(pts, normals,
-                                               np.ascontiguousarray(nb, dtype=np.int64),
-                                               bool(mirror))
+    ei, ej, cost, sign = _orient_edges(pts, np.ascontiguousarray(normals, dtype=np.float64),
+                                       np.ascontiguousarray(nb, dtype=np.int64), bool(mirror))
     order = np.argsort(cost, kind="quicksort")
     del cost
     rep, rel = _kernels.kruskal_signs(order, ei, ej, sign, n)

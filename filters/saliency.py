@@ -113,7 +113,9 @@ class _Hood:
         """Mean of ``values`` (n, ...) over every neighbourhood."""
         if _kernels.ENABLED:
             v = np.ascontiguousarray(values, dtype=np.float64).reshape(len(values), -1)
-            return _kernels.hood_mean(self.idx, self.count, v).reshape(values.shape)
+            parts = _kernels.run_chunks(lambda s, e: _kernels.hood_mean(
+                self.idx[s:e], self.count[s:e], v), len(self.idx), _kernels.TASK_ROWS)
+            return np.concatenate(parts).reshape(values.shape)
         out = np.zeros((len(self.idx),) + values.shape[1:])
         for s in range(0, len(self.idx), CHUNK):
             e = min(len(self.idx), s + CHUNK)
@@ -263,9 +265,15 @@ def _geometry(points: np.ndarray, hood: _Hood, r: float, n_rays: int):
     and the ray atoms (:func:`_ray_atoms`) of every neighbourhood; in one
     compiled pass when numba is available, else by the NumPy functions."""
     if _kernels.ENABLED:
-        return _kernels.saliency_geometry(np.ascontiguousarray(points, dtype=np.float64),
-                                          hood.idx, hood.count.astype(np.int64),
-                                          float(r), int(n_rays))
+        n = len(hood.idx)
+        frames, gauss, total = np.zeros((n, 3, 3)), np.zeros(n), np.zeros(n)
+        atoms = np.zeros((n, int(n_rays)), dtype=np.int32)
+        p = np.ascontiguousarray(points, dtype=np.float64)
+        count = hood.count.astype(np.int64)
+        _kernels.run_chunks(lambda s, e: _kernels.saliency_geometry(
+            p, hood.idx, count, float(r), int(n_rays), s, e, frames, gauss, total, atoms),
+            n, _kernels.TASK_ROWS)
+        return frames, gauss, total, atoms
     frames, gauss, total = local_frames_and_curvature(points, hood, r)
     return frames, gauss, total, _ray_atoms(points, hood, frames, r, n_rays)
 
