@@ -180,7 +180,9 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         x = points[idx]                                         # (c, k, 3)
         x -= points[rows, None, :]
         if _kernels.ENABLED and not weighted:
-            mean, lam, nrm = _kernels.scale_moments(x, ks, corr)
+            parts = _kernels.run_chunks(lambda s, e: _kernels.scale_moments(
+                x[s:e], ks, corr), c, _kernels.TASK_ROWS)
+            mean, lam, nrm = (np.concatenate([q[t] for q in parts]) for t in range(3))
             yield ScaleMoments(rows, dist, idx, x, mean, lam, nrm)
             continue
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)

@@ -195,8 +195,12 @@ def _omp_codes(X, D, L, tol):
     compiled kernel or the NumPy solver."""
     if _kernels.ENABLED:
         G = np.ascontiguousarray(D @ D.T)
-        return _kernels.omp_batch(np.ascontiguousarray(X), np.ascontiguousarray(D), G,
-                                  int(L), float(tol or 0.0), tol is not None, _EPS)
+        X, D = np.ascontiguousarray(X), np.ascontiguousarray(D)
+        parts = _kernels.run_chunks(lambda s, e: _kernels.omp_batch(
+            X[s:e], D, G, int(L), float(tol or 0.0), tol is not None, _EPS), len(X),
+            _kernels.TASK_ROWS)
+        return (np.concatenate([q[0] for q in parts]),
+                np.concatenate([q[1] for q in parts]))
     return _omp_chunk(X, D, L, tol)
 
 
