@@ -12,6 +12,8 @@ a 10⁹-point job on 32 and 256 workers (Amdahl, assumptions in the report);
 then, on 2 workers, larger terrains (peak memory per worker and time per 10⁶
 points against N) and a cloud of copies of a real scan (``EXTRA``).
 Writes scale.md and scale.json into the output folder (reports/, or reports/quick with --quick).
+``pcprep bench scale --speed`` runs the single-node part alone (each filter in
+one piece against one 16-NN pass, in minutes): speed_scale.md and .json.
 """
 
 from __future__ import annotations
@@ -313,6 +315,73 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
         json.dump(out, f, indent=1, default=float)
     with open(os.path.join(out_dir, "scale.md"), "w", encoding="utf-8") as f:
         f.write(_markdown(out))
+    return out
+
+
+#: points of the warm-up run before each timed one of ``run_speed``
+WARM_POINTS = 5000
+
+
+def _speed_filter(name: str, points) -> int:
+    """One filter over ``points`` in one piece, with ``PARAMS`` (for
+    :func:`harness.measure`: runs in a fresh process)."""
+    from pcprep.meshlab_bridge import registry, tiles
+
+    tiles._spec(registry, name).func(points, **PARAMS.get(name, {}))
+    return len(points)
+
+
+def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
+    """``pcprep bench scale --speed``: the single-node part alone.  Every tiled
+    filter over the whole generated terrain of 1M points (100K with --quick) in
+    one piece, each in a fresh process (:func:`harness.measure`: wall time of
+    the call, the compiled kernels' cache load included, and peak RSS), against
+    one 16-NN pass of the same cloud (cKDTree build + query, all cores) in the
+    same run.  Each timed run follows a run on ``WARM_POINTS`` of the points in
+    its own process, which fills numba's on-disk cache: a first run after an
+    install compiles the kernels (about 25 s for denoise), once.  Writes
+    speed_scale.md and speed_scale.json."""
+    from . import harness
+
+    n = QUICK_SIZES[0] if quick else SIZES[0]
+    work = tempfile.mkdtemp(prefix="pcprep-speed-")
+    try:
+        path = os.path.join(work, f"terrain_{n}.laz")
+        _terrain_laz(path, n, seed)
+        from pcprep.meshlab_bridge.formats import stream
+
+        pts = np.concatenate([b for _, b in stream.position_chunks(path)])
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    knn = harness.knn_pass_seconds(pts, 16)
+    rows = []
+    for name in FILTERS:
+        harness.measure(_speed_filter, name, pts[::max(1, n // WARM_POINTS)])
+        o = harness.measure(_speed_filter, name, pts)
+        rows.append({"filter": name, "n": n, "ok": o.ok, "error": o.error,
+                     "seconds": o.seconds if o.ok else None,
+                     "peak_mb": o.peak_mb if o.ok else None,
+                     "x_knn16": o.seconds / float(knn) if o.ok else None})
+        log.info("bench_scale speed: %s %s", name, o)
+    out = {"n": n, "knn16_s": float(knn), "rows": rows, "params": PARAMS,
+           "cpus": os.cpu_count(), "target_x_knn16": 4.0}
+    md = ["# Single-node speed: each filter in one piece", "",
+          f"Generated airborne-like terrain of {n:,} points (the `pcprep bench scale` "
+          f"cloud), each filter with its defaults ({PARAMS} beyond them) over the whole "
+          "cloud in one process, each in a fresh process after a warm-up run that fills "
+          "the compiled kernels' cache: wall time of the call (the cache load "
+          "included) and peak RSS (interpreter and "
+          f"input included), on {os.cpu_count()} cores.  Yardstick, same run: one "
+          f"cKDTree build + 16-NN query of the same cloud with all cores, "
+          f"{float(knn):.2f} s.  Target: within 4× that pass.", "",
+          "| filter | seconds | peak MB | × one 16-NN pass |", "|---|---|---|---|"]
+    for r in rows:
+        if r["ok"]:
+            md.append(f"| {r['filter']} | {r['seconds']:.2f} | {r['peak_mb']:.0f} | "
+                      f"{r['x_knn16']:.2f} |")
+        else:
+            md.append(f"| {r['filter']} | failed: {r['error']} | | |")
+    harness.write_report("speed_scale", "\n".join(md) + "\n", out, out_dir)
     return out
 
 

@@ -214,3 +214,24 @@ def test_environment_info():
                                      "matplotlib"}
     assert env["versions"]["numpy"] == np.__version__
     json.dumps(harness.to_jsonable(env), allow_nan=False)
+
+
+def test_single_node_speed_times_every_filter_against_one_knn_pass(tmp_path, monkeypatch):
+    """``pcprep bench scale --speed``: one row per filter, each timed in its own
+    process, its ratio the one to the 16-NN pass of the same run, both files
+    written."""
+    from pcprep.baselines import bench_scale
+
+    monkeypatch.setattr(bench_scale, "QUICK_SIZES", (4000,))
+    monkeypatch.setattr(bench_scale, "FILTERS", ("outliers", "simplify"))
+    monkeypatch.setattr(bench_scale, "WARM_POINTS", 1000)
+    out = bench_scale.run_speed(quick=True, out_dir=str(tmp_path))
+    assert out["n"] == 4000 and out["knn16_s"] > 0
+    assert [r["filter"] for r in out["rows"]] == ["outliers", "simplify"]
+    for r in out["rows"]:
+        assert r["ok"], r["error"]
+        assert r["seconds"] > 0 and r["peak_mb"] > 0
+        assert r["x_knn16"] == pytest.approx(r["seconds"] / out["knn16_s"])
+    md = (tmp_path / "speed_scale.md").read_text()
+    assert "| outliers |" in md and "| simplify |" in md
+    assert json.loads((tmp_path / "speed_scale.json").read_text())["n"] == 4000
