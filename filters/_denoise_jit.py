@@ -10,11 +10,14 @@ sphere projection.
 Each kernel computes rows ``s:e`` of its pass, one point at a time, with the
 same float64 arithmetic as its NumPy reference in ``_denoise_steps.py`` and
 ``_denoise_project.py`` (which runs when ``_kernels.ENABLED`` is False; the
-tests compare the two), except that sums run in another order and the
-exponentials come from ``_exp_into`` (within 2 ulp of libm).  A point's neighbour terms are recomputed from the
-positions instead of being gathered into (rows, k) arrays, which is what the
-NumPy passes spend most of their time on.  The kernels release the GIL, so the thread pool of ``_run_chunks`` runs
-them on every core.
+tests compare the two), except that sums over a point's neighbours run as four
+interleaved partial sums (``_sum4``) and the exponentials come from
+``_exp_into`` (within 2 ulp of libm).  A point's neighbour terms are recomputed
+from the positions instead of being gathered into (rows, k) arrays, which is
+what the NumPy passes spend most of their time on, and they are computed in
+branch-free loops over the neighbour count rounded up to 16 (``_up``), which
+LLVM vectorises.  The kernels release the GIL, so the thread pool of
+``_kernels.run_chunks`` runs them on every core.
 """
 
 from __future__ import annotations
@@ -357,7 +360,8 @@ if HAVE_NUMBA:
         for i in range(len(x)):
             acc = 0.0
             for c in range(3):
-                a = (x[i, c] - t_new[i] * n_new[i, c]) - (x[i, c] - t_old[i] * n_old[i, c])
+                a = ((x[i, c] - t_new[i] * n_new[i, c])
+                     - (x[i, c] - t_old[i] * n_old[i, c]))
                 if c == 0:
                     acc = a * a
                 else:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import _denoise_jit, _kernels
-from ._denoise_kernels import (COMPILED_CHUNK, WORK, _Ctx, _dot, _geometry, _rowsum, _run_chunks,
-                               _smallest_eigvec)
+from ._denoise_kernels import (COMPILED_CHUNK, WORK, _Ctx, _dot, _geometry, _rowsum,
+                               _run_chunks, _smallest_eigvec)
 
 #: Newton steps of the projection onto the fitted algebraic sphere
 PROJ_STEPS = 3

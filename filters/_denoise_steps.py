@@ -15,8 +15,9 @@ from functools import partial
 import numpy as np
 
 from . import _denoise_jit, _kernels
-from ._denoise_kernels import (CHUNK, COMPILED_CHUNK, WORK, _Ctx, _dot, _eta, _geometry, _psi, _rowsum,
-                               _run_chunks, _smallest_eigvec, _tau_irls, _tv)
+from ._denoise_kernels import (CHUNK, COMPILED_CHUNK, WORK, _Ctx, _dot, _eta, _geometry,
+                               _psi, _rowsum, _run_chunks, _smallest_eigvec, _tau_irls,
+                               _tv)
 
 #: init passes followed by the candidate selection
 SELECT_PASSES = 1
@@ -359,7 +360,8 @@ def _smooth_curvature(ctx: _Ctx, normals: np.ndarray, curv: np.ndarray) -> np.nd
         nrm = np.ascontiguousarray(normals, dtype=np.float64)
         c = np.ascontiguousarray(curv, dtype=np.float64)
         _run_chunks(lambda s, e: _denoise_jit.curvature_rows(
-            ctx.x, ctx.idx, nrm, c, s, e, ctx.r2, ctx.sd2, out), len(curv), COMPILED_CHUNK)
+            ctx.x, ctx.idx, nrm, c, s, e, ctx.r2, ctx.sd2, out), len(curv),
+            COMPILED_CHUNK)
         return out
 
     def kernel(s, e):

@@ -421,8 +421,9 @@ def _orient_compiled(points, normals, nb, mirror):
     contradicting agreements."""
     n = len(points)
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    ei, ej, cost, sign = _orient_edges(pts, np.ascontiguousarray(normals, dtype=np.float64),
-                                       np.ascontiguousarray(nb, dtype=np.int64), bool(mirror))
+    ei, ej, cost, sign = _orient_edges(
+        pts, np.ascontiguousarray(normals, dtype=np.float64),
+        np.ascontiguousarray(nb, dtype=np.int64), bool(mirror))
     order = np.argsort(cost, kind="quicksort")
     del cost
     rep, rel = _kernels.kruskal_signs(order, ei, ej, sign, n)
