@@ -12,7 +12,7 @@ covariance features on a learned dictionary, thesis §7.3, eqs (7.1)-(7.11).
 3. Threshold: Otsu on the winsorised score, or T = β·max f (7.10); f > T (7.11).
 4. Not in the thesis: a crease-angle gate (``min_angle``) and a localisation
    step that keeps the points near the crease line (``crease_width``,
-   ``plane_width``, ``row_width``); helpers in ``_crease.py``.
+   ``plane_width``); helpers in ``_crease.py``.
 
 The measurements behind every rule are in docs/decisions/features.md.
 """
@@ -46,9 +46,6 @@ _PLANE_RMS0 = 0.05
 _PLANE_RMS_GAIN = 1.2
 #: neighbourhood size whose PCA normals seed the two-plane split and the angle gate
 _NORMAL_K = 16
-#: a sampling is regular (mesh vertices, grids) when the coefficient of variation
-#: of the nearest-neighbour distance is below this (uniform random: ≈ 0.52)
-_REGULAR_CV = 0.35
 
 
 @dataclass(frozen=True)
@@ -62,15 +59,14 @@ class _SharpRules:
 
     localise: bool = True         # keep points within a width of the crease line
     two_plane: bool = True        # the two-plane crease model where it fits
-    row_by_sampling: bool = True  # row_width on regularly sampled clouds
     angle_gate: bool = True       # the crease-angle gate (min_angle)
     uniform_pca: bool = True      # uniform weights in (7.1), not the printed Gaussian
 
 
 DEFAULT_RULES = _SharpRules()
 #: the thesis' method has none of the added steps
-THESIS_RULES = _SharpRules(localise=False, two_plane=False, row_by_sampling=False,
-                           angle_gate=False, uniform_pca=False)
+THESIS_RULES = _SharpRules(localise=False, two_plane=False, angle_gate=False,
+                           uniform_pca=False)
 
 #: the method as printed (§7.3-§7.4.1): Lasso coding with λ = 0.01 (λ = 2·alpha in
 #: the ½‖·‖² convention of ``sparse.lasso_lars``), S = 100 atoms, ten scales, the
@@ -81,7 +77,6 @@ THESIS = {"coder": "lasso_lars", "alpha": 0.005, "score": "count", "beta": 0.02,
 PARAMS = (
     Param("crease_width", float, low=0.0, high=100.0, closed="right", unit="h"),
     Param("plane_width", float, low=0.0, high=100.0, closed="right", unit="h"),
-    Param("row_width", float, low=0.0, high=100.0, closed="right", unit="h"),
     Param("min_angle", float, low=0.0, high=90.0, unit="deg"),
     Param("otsu_scale", float, low=0.0, high=1.0, closed="right", optional=True),
     *SCORE_PARAMS,
@@ -95,7 +90,6 @@ class _SharpConfig:
 
     crease_width: float
     plane_width: float
-    row_width: float
     min_angle: float
     otsu_scale: float | None
     beta: float | None
@@ -113,8 +107,6 @@ class SharpFeatures:
         Average spacing used to make them unit-free.
     normals : (n, 3) float
         PCA normals of the scale nearest 16 points (sign arbitrary).
-    nn_cv : float
-        Coefficient of variation of the nearest-neighbour distance.
     noise_column : (n,) float
         λ0/h² of the smallest scale (``features[:, 0]``), the input of the
         noise estimate.
@@ -125,19 +117,14 @@ class SharpFeatures:
     reach : (n,) float
         Distance to the largest scale's last neighbour: every feature of the
         row reads only points within it (a tiled run checks its halo with it).
-    nearest : (n,) float
-        Distance to the nearest neighbour (``nn_cv`` is its coefficient of
-        variation).
     """
 
     features: np.ndarray
     h: float
     normals: np.ndarray
-    nn_cv: float
     noise_column: np.ndarray
     ridge_pd: np.ndarray
     reach: np.ndarray
-    nearest: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -202,7 +189,6 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
         h = average_spacing(points, tree=tree)
     out = np.empty((n, 4 * len(ks)))  # noqa: NPY-empty -- every row written below
     normals = np.empty((n, 3))  # noqa: NPY-empty -- every row written below
-    nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
     reach = np.empty(n)  # noqa: NPY-empty -- every entry written below
     rows = np.empty(n) if own_h else None  # noqa: NPY-empty -- every entry written below
     j_nrm = int(np.argmin(np.abs(ks - _NORMAL_K)))
@@ -210,7 +196,6 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
         at = m.rows
         if own_h:
             rows[at] = m.dist[:, 1:SPACING_K + 1].mean(axis=1)
-        nn1[at] = m.dist[:, 1]
         reach[at] = m.dist[:, -1]
         lam = m.eigenvalues
         l0, l2s = lam[..., 0], np.maximum(lam[..., 2], 1e-300)
@@ -226,16 +211,9 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
                 "average_spacing: every point coincides with its neighbours (h = 0)")
     out[:, 0::4] /= h * h                                       # λ0 in h²
     out[:, 3::4] /= h                                           # Pd in h
-    return SharpFeatures(features=out, h=float(h), normals=normals, nn_cv=variation(nn1),
+    return SharpFeatures(features=out, h=float(h), normals=normals,
                          noise_column=out[:, 0].copy(),
-                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1), reach=reach,
-                         nearest=nn1)
-
-
-def variation(nearest: np.ndarray) -> float:
-    """Coefficient of variation of the nearest-neighbour distances (0 if all are 0)."""
-    m1 = float(nearest.mean())
-    return float(nearest.std() / m1) if m1 > 0 else 0.0
+                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1), reach=reach)
 
 
 def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
@@ -251,13 +229,12 @@ def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float
     return T * (_OTSU_SCALE_GATED if gated else 1.0)
 
 
-def _crease_limits(pts, mask, ridge, normals, *, h: float, sigma: float, regular: bool,
+def _crease_limits(pts, mask, ridge, normals, *, h: float, sigma: float,
                    cfg: _SharpConfig, rules: _SharpRules, tree) -> tuple[np.ndarray, np.ndarray]:
     """Each detected point's distance to its crease line and the width it must
-    meet (two-plane model where it fits, ridge line elsewhere; ``row_width``
-    on a regular sampling), both in h."""
+    meet (two-plane model where it fits, ridge line elsewhere), both in h."""
     cdist = crease_distance(pts, mask, ridge, h=h, k=localisation_k(sigma), tree=tree)
-    limit = np.full(len(pts), float(cfg.row_width if regular else cfg.crease_width))
+    limit = np.full(len(pts), float(cfg.crease_width))
     if rules.two_plane:
         k_pl = plane_k(sigma)
         pdist, prms = two_plane_distance(pts, mask, normals, h=h, k=k_pl, tree=tree)
@@ -265,7 +242,7 @@ def _crease_limits(pts, mask, ridge, normals, *, h: float, sigma: float, regular
         log.info("%s: two-plane crease model (k=%d) fits %d of %d detected points",
                  _FUNC, k_pl, int(planar.sum()), int(mask.sum()))
         cdist = np.where(planar, pdist, cdist)
-        limit[planar] = cfg.row_width if regular else cfg.plane_width
+        limit[planar] = cfg.plane_width
     return cdist, limit
 
 
@@ -280,12 +257,11 @@ def local_k(sigma: float, cfg: _SharpConfig, rules: _SharpRules) -> int:
     return k
 
 
-def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float, regular: bool,
+def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float,
               cfg: _SharpConfig, rules: _SharpRules):
     """The crease-angle gate and the localisation of the thresholded ``mask``
     (changed in place).  Every test reads one detected point's neighbourhood
-    only, given the cloud-wide noise level ``sigma`` and sampling type
-    ``regular``.  Returns ``spread, cdist, limit`` (None for a step not run)."""
+    only, given the cloud-wide noise level ``sigma``.  Returns ``spread, cdist, limit`` (None for a step not run)."""
     spread = cdist = limit = None
     if rules.angle_gate and cfg.min_angle > 0 and mask.any():
         spread = normal_spread(pts, mask, normals, tree=tree)
@@ -295,7 +271,7 @@ def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float, regula
                  _FUNC, cfg.min_angle, int(mask.sum()), n_det)
     if rules.localise and mask.any():
         cdist, limit = _crease_limits(pts, mask, ridge, normals, h=h, sigma=sigma,
-                                      regular=regular, cfg=cfg, rules=rules, tree=tree)
+                                      cfg=cfg, rules=rules, tree=tree)
         n_det = int(mask.sum())
         mask &= cdist <= limit
         log.info("%s: localisation keeps %d of %d detected points", _FUNC,
@@ -303,16 +279,13 @@ def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float, regula
     return spread, cdist, limit
 
 
-def cloud_state(noise_column: np.ndarray, nn_cv: float, rules: _SharpRules):
-    """The two cloud-wide inputs of the localisation: the noise level σ̂ in h
-    (``noise_level``) and whether the sampling is regular (nearest-neighbour
-    CV below 0.35)."""
+def cloud_state(noise_column: np.ndarray) -> float:
+    """The cloud-wide input of the localisation: the noise level σ̂ in h
+    (``noise_level``)."""
     sigma = noise_level(noise_column)
-    regular = rules.row_by_sampling and nn_cv < _REGULAR_CV
-    log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d; nearest-neighbour CV "
-             "%.3g: %s sampling", _FUNC, sigma, localisation_k(sigma), nn_cv,
-             "regular" if regular else "irregular")
-    return sigma, regular
+    log.info("%s: noise estimate %.3g h, crease neighbourhood k=%d", _FUNC, sigma,
+             localisation_k(sigma))
+    return sigma
 
 
 def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _SharpConfig,
@@ -321,11 +294,10 @@ def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _Sharp
     score = codes.score
     T = threshold(score, cfg, rules)
     mask = score > T                                            # (7.11)
-    sigma, regular = cloud_state(feats.noise_column, feats.nn_cv, rules)
+    sigma = cloud_state(feats.noise_column)
     # ridge strength: code length × mean Pd (h) over the larger half of the scales
     spread, cdist, limit = _localise(pts, tree, mask, feats.normals, score * feats.ridge_pd,
-                                     h=feats.h, sigma=sigma, regular=regular, cfg=cfg,
-                                     rules=rules)
+                                     h=feats.h, sigma=sigma, cfg=cfg, rules=rules)
     log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
              len(pts))
     return SharpResult(mask=mask, score=score, threshold=float(T),
@@ -350,9 +322,8 @@ def _run(points, normals, cfg: _SharpConfig, stage: ScoreConfig,
 
 
 @validate_params(*PARAMS, presets={"thesis": THESIS})
-def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
-                          plane_width: float = 1.0, row_width: float = 0.5,
-                          min_angle: float = 25.0, otsu_scale: float | None = None,
+def detect_sharp_features(points, normals=None, *, crease_width: float = 1.0,
+                          plane_width: float = 1.15, min_angle: float = 25.0, otsu_scale: float | None = None,
                           n_scales: int = 10, k_min: int = 8, k_max: int = 40,
                           n_atoms: int = 100, coder: str = "omp", alpha: float = 0.01,
                           tol: float = 0.1, score: str = "l1", beta: float | None = None,
@@ -366,12 +337,10 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
         The cloud (n > k_max).
     normals : (n, 3) float, optional
         Validated, not used: (7.4) uses each scale's PCA normal.
-    crease_width : float, default=0.7
+    crease_width : float, default=1.0
         Keep a detected point within this many h of its ridge-line crease estimate.
-    plane_width : float, default=1.0
+    plane_width : float, default=1.15
         The same width where the two-plane crease model fits, in h.
-    row_width : float, default=0.5
-        Both widths on a regularly sampled cloud (mesh vertices, grids), in h.
     min_angle : float, default=25.0
         Keep a detected point only if its neighbours' normals turn by this angle (0: off).
     otsu_scale : float, optional
@@ -429,9 +398,9 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
     Added: a crease-angle gate, as Otsu finds a rare class even on a sphere
     ("Crease-angle gate"); a localisation, as the code marks a band as wide as
     the largest neighbourhood: points beyond a width of the crease line (two
-    fitted planes, else the ridge line; ``row_width`` on regular sampling) are
-    dropped ("Crease localisation", "Two-plane crease model", "Width by
-    sampling"); with both, T is 0.6 of Otsu's split, for recall ("Threshold
+    fitted planes, else the ridge line) are dropped, with the same widths on
+    every sampling ("Crease localisation", "Two-plane crease model", "One
+    width on every sampling"); with both, T is 0.6 of Otsu's split, for recall ("Threshold
     below Otsu's split").
 
     Examples
@@ -442,7 +411,7 @@ def detect_sharp_features(points, normals=None, *, crease_width: float = 0.7,
     >>> bool(r.mask.shape == (4000,) and 0 < r.mask.sum() < 4000)
     True
     """
-    cfg = _SharpConfig(crease_width, plane_width, row_width, min_angle, otsu_scale, beta)
+    cfg = _SharpConfig(crease_width, plane_width, min_angle, otsu_scale, beta)
     stage = ScoreConfig(n_scales, k_min, k_max, n_atoms, coder, alpha, tol, score,
                         max_iter, max_train, seed)
     return _run(points, normals, cfg, stage,
@@ -467,19 +436,18 @@ def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
 
 
 def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: int,
-               params: dict, mask=None, normals=None, ridge=None, sigma: float = 0.0,
-               regular: bool = False) -> dict:
+               params: dict, mask=None, normals=None, ridge=None,
+               sigma: float = 0.0) -> dict:
     """One tile of a tiled run (``pcprep.meshlab_bridge.tiles``), default rules.
 
     ``points`` are every point of the cloud in the box ``[lo, hi]`` (its core
     rows ``core``); ``params`` the validated keywords of
     ``detect_sharp_features``.  Stage ``"features"`` returns the core rows'
-    features (7.1)-(7.4) with the given cloud-wide h, their PCA normals, ridge
-    factor and nearest-neighbour distance; stage ``"gates"`` runs the
+    features (7.1)-(7.4) with the given cloud-wide h, their PCA normals and ridge
+    factor; stage ``"gates"`` runs the
     crease-angle gate and the localisation on the core rows of the
-    thresholded ``mask`` (``normals``, ``ridge`` given for every row; σ̂ and
-    the sampling type are cloud-wide) and returns the final mask of the core
-    rows.  A result is ``{"exact": False}`` when a core row's neighbourhood
+    thresholded ``mask`` (``normals``, ``ridge`` given for every row; σ̂ is
+    cloud-wide) and returns the final mask of the core rows.  A result is ``{"exact": False}`` when a core row's neighbourhood
     may reach beyond the box, which makes the tiler widen the halo.
     """
     from .neighbors import build_tree, tile_miss
@@ -498,7 +466,7 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
         if miss is not None:
             return miss
         return {"exact": True, "features": feats.features[core], "normals": feats.normals[core],
-                "ridge_pd": feats.ridge_pd[core], "nearest": feats.nearest[core]}
+                "ridge_pd": feats.ridge_pd[core]}
     sel = core & mask
     k = local_k(sigma, cfg, rules)
     if sel.any():
@@ -509,6 +477,5 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
         miss = tile_miss(x[sel], d[:, -1], *box)
         if miss is not None:
             return miss
-        _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, regular=regular, cfg=cfg,
-                  rules=rules)
+        _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, cfg=cfg, rules=rules)
     return {"exact": True, "mask": sel[core]}

@@ -878,7 +878,7 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
 def _sharp(runner, src, normals, h, prm) -> TiledResult:
     """Tiled sharp features: the features of every row by tiles (a halo of the
     largest scale), the score as in ``_scores``, the threshold from every
-    score, the noise level and sampling type from every row, then the gate and
+    score, the noise level from every row, then the gate and
     the localisation by tiles (a halo of their largest neighbourhood)."""
     from pcprep.filters import sharp
 
@@ -887,20 +887,17 @@ def _sharp(runner, src, normals, h, prm) -> TiledResult:
     Fc = _feature_store(runner, 4 * stage.n_scales, n)
     nrm = runner.store("normals", (n, 3))
     ridge_pd = runner.store("ridge_pd", n)
-    nearest = runner.store("nearest", n)
 
     def collect(rows, core, res):
         r = rows[core]
         Fc[:, r] = res["features"].T
         nrm[r] = res["normals"]
         ridge_pd[r] = res["ridge_pd"]
-        nearest[r] = res["nearest"]
 
     base = dict(centre=src.centre, h=h, n_total=n, params=prm)
     runner.run("features", sharp.sharp_tile, _knn_reach(stage.k_max) * h,
                dict(base, stage="features"), collect)
-    sigma, regular = sharp.cloud_state(np.asarray(Fc[0]), sharp.variation(nearest),
-                                       sharp.DEFAULT_RULES)
+    sigma = sharp.cloud_state(np.asarray(Fc[0]))
     score = _scores(runner, Fc, stage)
     T = sharp.threshold(score, cfg, sharp.DEFAULT_RULES)
     mask = runner.map("score_mask", lambda v: v > T, score, dtype=bool)       # (7.11)
@@ -912,14 +909,14 @@ def _sharp(runner, src, normals, h, prm) -> TiledResult:
 
     k = sharp.local_k(sigma, cfg, sharp.DEFAULT_RULES)
     runner.run("feature gates", sharp.sharp_tile, _knn_reach(k) * h,
-               dict(base, stage="gates", sigma=sigma, regular=regular), collect_gates,
+               dict(base, stage="gates", sigma=sigma), collect_gates,
                lambda rows, core: {"mask": mask[rows], "normals": nrm[rows],
                                    "ridge": ridge[rows]})
     log.info("features: threshold %.4g; %d of %d points after the gate and the "
              "localisation", T, int(final.sum()), n)
     quality = runner.map("quality", lambda v: v.astype(np.float64), final)
     return TiledResult({"mask": final, "score": score, "quality": quality},
-                       h, {"threshold": T, "passes": 5, "noise": sigma, "regular": regular})
+                       h, {"threshold": T, "passes": 5, "noise": sigma})
 
 
 def _holes(runner, src, normals, h, prm) -> TiledResult:

@@ -24,8 +24,8 @@ register(FilterSpec(
         "thresholded automatically by Otsu's method, or at β·max (7.10).  Not in the "
         "thesis: a crease-angle gate (min_angle) and a localisation step that keeps the "
         "points within crease_width·h of the crease line estimated from their "
-        "neighbourhood (plane_width where two fitted planes explain it, row_width on "
-        "mesh-like sampling).  Detected points become the vertex selection and vertex "
+        "neighbourhood (plane_width where two fitted planes explain it), the same "
+        "widths on every sampling.  Detected points become the vertex selection and vertex "
         "quality 1 (others 0); the code-length score is kept as the per-vertex "
         "attribute 'score'."
     ),
