@@ -4,8 +4,9 @@ _border.py
 Geometric tests of ``holes.py`` (not in the thesis): where the surface ends
 toward a border (``strip_extent``), the border distance implied by centroid
 shifts (``border_distance``), the empty angle around a point
-(``largest_angle_gap``, ``border_gap``), and the chains along a border
-(``track_border``, ``border_radius``).  Why each exists, and what it was
+(``largest_angle_gap``, ``border_gap``), the chains along a border
+(``track_border``, ``border_radius``) and the points near a set
+(``near_any``).  Why each exists, and what it was
 measured to do, is in docs/decisions/features.md.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .multiscale import chain_labels, sym3_eig
-from .neighbors import CHUNK
+from .neighbors import CHUNK, build_tree
 
 #: half-width (h) of the strip toward the border in which the outermost samples are
 #: sought, and the empty stretch (h) along it that counts as the surface's end
@@ -231,3 +232,28 @@ def border_radius(points: np.ndarray, link: float) -> np.ndarray:
     radius = np.zeros(len(count))
     np.maximum.at(radius, lab, np.linalg.norm(points - centre[lab], axis=1))
     return radius[lab]
+
+
+def near_any(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarray:
+    """Which ``queries`` lie within ``radius`` of at least one of ``points``.
+
+    Parameters
+    ----------
+    points : (m, 3) float
+    queries : (q, 3) float
+    radius : float
+        In the points' units.
+
+    Returns
+    -------
+    (q,) bool
+        False everywhere when ``points`` is empty.
+
+    >>> near_any(np.zeros((1, 3)), np.array([[0.5, 0, 0], [2.0, 0, 0]]), 1.0).tolist()
+    [True, False]
+    """
+    if len(points) == 0 or len(queries) == 0:
+        return np.zeros(len(queries), dtype=bool)
+    d, _ = build_tree(points).query(queries, k=1,
+                                    distance_upper_bound=np.nextafter(radius, np.inf))
+    return d <= radius

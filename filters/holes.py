@@ -14,8 +14,8 @@ multi-scale border features, thesis §7.3.1 and §7.3.4, eqs (7.5)-(7.7).
    (7.12)-(7.13), f < β·min f, selects nothing.
 4. Not in the thesis: point-wise tests on the geometry of each detection
    (shift, border distance, flatness, strip extent), then tests along the
-   border (support, smallest hole, border row and its tracking); helpers in
-   ``_border.py``.
+   border (support, smallest hole, border row and its tracking), the same on
+   every sampling; helpers in ``_border.py``.
 
 The measurements behind every rule are in docs/decisions/features.md.
 """
@@ -27,8 +27,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._border import (border_distance, border_gap, border_radius, strip_extent,
-                      track_border)
+from ._border import (border_distance, border_gap, border_radius, near_any,
+                      strip_extent, track_border)
 from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
@@ -38,16 +38,16 @@ from .neighbors import average_spacing, build_tree
 log = logging.getLogger("pcprep")
 
 _FUNC = "detect_hole_boundaries"
-#: random-like sampling: at least _RANDOM_CLOSE of the points have their nearest
-#: neighbour closer than _CLOSE_RATIO × the median nearest-neighbour distance
-_CLOSE_RATIO = 0.3
-_RANDOM_CLOSE = 0.01
 #: radius (h) within which a detection counts its detected neighbours, and the
 #: largest gap (h) within one border of the smallest-hole test
 _SUPPORT_RADIUS = 3.0
 #: largest step (h) between two samples of one border row (border tracking)
 _TRACK_LINK = 1.5
-#: default smallest hole radius (h) per unit of ln(n) on random-like sampling
+#: a border-row candidate joins the tracking only within this distance (h) of a
+#: detection, and a detection is kept within _ROW_BAND (h) of the tracked row
+_ROW_REACH = 1.0
+_ROW_BAND = 1.2
+#: default smallest hole radius (h) per unit of ln(n)
 _CHANCE_GAP_PER_LOG_N = 0.3
 
 
@@ -65,8 +65,8 @@ class _HoleRules:
     strip_extent: bool = True    # outermost samples toward the border (extent_width)
     flatness: bool = True        # flatness gate (max_variation)
     support: bool = True         # detected neighbours along the border (min_support)
-    smallest_hole: bool = True   # border radius on random-like sampling (min_radius)
-    border_row: bool = True      # border row and tracking on mesh-like sampling
+    smallest_hole: bool = True   # border radius (min_radius)
+    border_row: bool = True      # border row, its tracking and the band along it
     second_split: bool = True    # without the strip test, Otsu again inside the upper class
     tangential_shift: bool = True  # shift in the tangent plane / r, not ‖p̄ − p_i‖/h (7.7)
 
@@ -127,9 +127,6 @@ class HoleFeatures:
         Surface variation λ0/Σλ of the smallest scale.
     near : (n, k_min) int32
         Each point's k_min nearest neighbours (column 0: the point itself).
-    close_fraction : float
-        Fraction of the points whose nearest neighbour is closer than 0.3 × the
-        median nearest-neighbour distance (random-like sampling: ≥ 1 %).
     shift_mean : (n,) float
         Mean shift / r over the scales, the input of the ``min_shift`` test,
         kept apart from ``features``, which the detector orients and
@@ -137,8 +134,6 @@ class HoleFeatures:
     reach : (n,) float
         Distance to the largest scale's last neighbour: every feature of the
         row reads only points within it (a tiled run checks its halo with it).
-    nearest : (n,) float
-        Distance to the nearest neighbour (the input of ``close_fraction``).
     """
 
     features: np.ndarray
@@ -146,10 +141,8 @@ class HoleFeatures:
     extent: np.ndarray
     variation: np.ndarray
     near: np.ndarray
-    close_fraction: float
     shift_mean: np.ndarray
     reach: np.ndarray
-    nearest: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -211,11 +204,9 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
     extent = np.empty(n)  # noqa: NPY-empty -- every entry written below
     variation = np.empty(n)  # noqa: NPY-empty -- every entry written below
     near = np.empty((n, int(ks[0])), dtype=np.int32)  # noqa: NPY-empty -- all rows set
-    nn1 = np.empty(n)  # noqa: NPY-empty -- every entry written below
     reach = np.empty(n)  # noqa: NPY-empty -- every entry written below
     for m in scale_moments(points, ks, tree=tree):
         at = m.rows
-        nn1[at] = m.dist[:, 1]
         reach[at] = m.dist[:, -1]
         near[at] = m.idx[:, :ks[0]]
         lam, mean = m.eigenvalues, m.mean
@@ -233,13 +224,7 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
         variation[at] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
     out[:, 1::3] *= h * h                                       # k h² / (π r²)
     return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,
-                        near=near, close_fraction=close_fraction(nn1),
-                        shift_mean=out[:, 2::3].mean(axis=1), reach=reach, nearest=nn1)
-
-
-def close_fraction(nearest: np.ndarray) -> float:
-    """Fraction of the nearest-neighbour distances below 0.3 × their median."""
-    return float(np.mean(nearest < _CLOSE_RATIO * np.median(nearest)))
+                        near=near, shift_mean=out[:, 2::3].mean(axis=1), reach=reach)
 
 
 def _orient(F: np.ndarray) -> np.ndarray:
@@ -310,38 +295,46 @@ def _smallest_hole(take, mask, n: int, h: float, min_radius: float | None) -> No
 
 
 def _border_row(take, mask, gap: np.ndarray, h: float, row_angle: float) -> np.ndarray:
-    """Keep the detections with an empty angle (``gap``, radians, every row)
-    > ``row_angle``, then add the samples with such an angle chained to them
-    within 1.5h."""
+    """The border row and the band along it.
+
+    Row samples are those with an empty angle (``gap``, radians, every row) >
+    ``row_angle``.  The detected ones seed a tracking along the row: the
+    other row samples within ``_ROW_REACH`` h of a detection are chained to
+    them within ``_TRACK_LINK`` h.  The result is the tracked row and the
+    detections within ``_ROW_BAND`` h of it.
+    """
     n_det = int(mask.sum())
     row = gap > np.radians(row_angle)
-    mask &= row
-    n_row = int(mask.sum())
-    cand = np.flatnonzero(row)
+    det = np.flatnonzero(mask)
+    other = np.flatnonzero(row & ~mask)
+    cand = np.zeros(len(mask), dtype=bool)
+    cand[det[row[det]]] = True
+    cand[other[near_any(take(det), take(other), _ROW_REACH * h)]] = True
+    rows = np.flatnonzero(cand)
+    tracked = rows[track_border(take(rows), mask[rows], cand[rows], _TRACK_LINK * h)]
     out = np.zeros(len(mask), dtype=bool)
-    out[cand[track_border(take(cand), mask[cand], row[cand], _TRACK_LINK * h)]] = True
-    log.info("%s: border row (angular gap > %.3g deg) keeps %d of %d detected points; "
-             "tracking along it adds %d", _FUNC, row_angle, n_row, n_det,
-             int(out.sum()) - n_row)
+    out[tracked] = True
+    rest = det[~out[det]]
+    out[rest[near_any(take(tracked), take(rest), _ROW_BAND * h)]] = True
+    log.info("%s: border row (angular gap > %.3g deg): %d samples tracked from %d "
+             "detections; %d of the %d detected points kept within %.3g h of it", _FUNC,
+             row_angle, len(tracked), int(row[det].sum()), int(out[det].sum()), n_det,
+             _ROW_BAND)
     return out
 
 
 def _chains(take, mask, feats: HoleFeatures, gap, cfg: _HoleConfig,
             rules: _HoleRules) -> np.ndarray:
-    """The tests along the border: support, then the smallest hole (random-like
-    sampling) or the border row (mesh-like).  They read the detected points
-    and the row candidates only, through ``take(rows)``; ``gap()`` gives
-    every row's empty angle.  Border chains are cloud-wide, so a tiled run
-    runs this on the gathered detections."""
+    """The tests along the border: support, the smallest hole, the border row
+    and the band along it, the same on every sampling.  They read the
+    detected points and the row candidates only, through ``take(rows)``;
+    ``gap()`` gives every row's empty angle.  Border chains are cloud-wide,
+    so a tiled run runs this on the gathered detections."""
     if rules.support and cfg.min_support > 0 and mask.any():
         _support(take, mask, feats.h, cfg.min_support)
-    random_like = feats.close_fraction >= _RANDOM_CLOSE
-    log.info("%s: %.3g %% of the points have a neighbour closer than %.2g x the median "
-             "spacing: %s sampling", _FUNC, 100.0 * feats.close_fraction, _CLOSE_RATIO,
-             "random-like" if random_like else "mesh-like")
-    if random_like and rules.smallest_hole and mask.any():
+    if rules.smallest_hole and mask.any():
         _smallest_hole(take, mask, len(mask), feats.h, cfg.min_radius)
-    if not random_like and rules.border_row and mask.any():
+    if rules.border_row and mask.any():
         mask = _border_row(take, mask, gap(), feats.h, cfg.row_angle)
     return mask
 
@@ -416,9 +409,9 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
     min_support : int, default=2
         Fewest other detections within 3h of a kept one.
     min_radius : float, optional
-        Smallest hole radius in h on random-like sampling; auto: 0.3·ln(n).
+        Smallest hole radius in h; auto: 0.3·ln(n).
     row_angle : float, default=90.0
-        Empty angle (degrees) of a border sample on mesh-like sampling.
+        Empty angle (degrees) of a sample of the border row.
     n_scales : int, default=10
         Number of neighbourhood sizes, geometrically spaced from k_min to k_max.
     k_min, k_max : int, default=16, 80
@@ -469,10 +462,11 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
     one-sided ("Shift gate"); border distance and strip extent, against a band
     as wide as the largest neighbourhood ("Border distance", "Strip extent");
     the flatness gate against thin parts ("Flatness gate"); border support, a
-    border being a curve ("Border support"); the smallest hole on random-like
-    sampling, whose chance gaps grow with n ("Smallest hole"); the border row
-    on mesh-like sampling, followed along itself ("Border row test", "Border
-    tracking").
+    border being a curve ("Border support"); the smallest hole, as chance gaps
+    of a random sampling grow with n ("Smallest hole"); the border row,
+    followed along itself near the detections, and the detections within
+    1.2h of it ("Border row and band", "Border tracking").  Every step runs
+    on every sampling ("One rule on every sampling").
 
     Examples
     --------
@@ -514,8 +508,8 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
     point of the cloud in the box ``[lo, hi]``), with the cloud-wide h.
 
     Returns the core rows' oriented features (7.5)-(7.7), the inputs of the
-    point-wise tests (shift, border distance, flatness, extent), the empty
-    angle of the border-row test and the nearest-neighbour distance; or
+    point-wise tests (shift, border distance, flatness, extent) and the empty
+    angle of the border-row test; or
     ``{"exact": False}`` when a core row's neighbourhood may reach beyond
     the box.  Scores, threshold and the chain tests are cloud-wide and run
     on the gathered rows.
@@ -537,5 +531,4 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
     bdist = _rim_distance(F, ks) if rules.rim_distance else None
     return {"exact": True, "features": _orient(F), "extent": feats.extent[core],
             "variation": feats.variation[core], "shift_mean": feats.shift_mean[core],
-            "border_distance": bdist, "gap": border_gap(x, feats.near[core]),
-            "nearest": feats.nearest[core]}
+            "border_distance": bdist, "gap": border_gap(x, feats.near[core])}

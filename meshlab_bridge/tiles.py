@@ -933,7 +933,7 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
     n = src.n
     Fc = _feature_store(runner, 3 * stage.n_scales, n)
     cols = {c: runner.store(c, n) for c in ("extent", "variation", "shift_mean",
-                                            "border_distance", "gap", "nearest")}
+                                            "border_distance", "gap")}
 
     def collect(rows, core, res):
         r = rows[core]
@@ -947,9 +947,7 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
     score = _scores(runner, Fc, stage)
     feats = holes.HoleFeatures(features=None, h=h, extent=cols["extent"],
                                variation=cols["variation"], near=None,
-                               close_fraction=holes.close_fraction(cols["nearest"]),
-                               shift_mean=cols["shift_mean"], reach=None,
-                               nearest=cols["nearest"])
+                               shift_mean=cols["shift_mean"], reach=None)
     centre = src.centre
     mask, T = holes.select_borders(lambda rows: np.asarray(src.xyz[rows]) - centre, score,
                                    feats, cols["border_distance"] if rules.rim_distance
