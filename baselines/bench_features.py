@@ -331,12 +331,11 @@ def _band_section(rows, methods) -> list[str]:
     return ["Holes cut into mesh-vertex clouds: F1 against the row truth of the "
             "table above (the kept vertices joined by a mesh edge to a removed one) "
             "and against the band rule of the randomly sampled shapes (within 1.5h "
-            "of the removed ball's surface, about two rows).  On mesh-like clouds "
-            "(both meshes: at most 0.4 % of their vertices closer than 0.3 x the "
-            "median spacing to their nearest neighbour, against about 6 % for a "
-            "random sampling) ours keeps the border row, the detections that leave "
-            "an empty angle > 90° around them, and follows it along itself "
-            "(`row_angle`, see docs/decisions/features.md, \"Border row test\").", "",
+            "of the removed ball's surface, about two rows).  On every sampling ours "
+            "tracks the border row (samples that leave an empty angle > 90° around "
+            "them, near its detections) and keeps it with the detections within 1.2h "
+            "of it (`row_angle`; docs/decisions/features.md, \"Border row and "
+            "band\").", "",
             harness.markdown_table(
                 ["data", "n"] + [f"{m} F1 (row)" for m in methods]
                 + [f"{m} F1 (band)" for m in methods], body, fmt="{:.3f}"), ""]

@@ -311,7 +311,7 @@ def _normalise(v: np.ndarray) -> np.ndarray:
 @validate_params(*PARAMS, presets={"thesis": THESIS})
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
                         alpha: float = 0.9, measure: str = "residual",
-                        accumulation: str = "quantile", acc_quantile: float = 0.1,
+                        accumulation: str = "mean", acc_quantile: float = 0.1,
                         k_max: int = 32, preset: str | None = None) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (Leal Narváez 2020, ch. 5).
 
@@ -321,8 +321,8 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     ``n_rays`` neighbours nearest the ends of rays of length r in the PCA tangent
     plane (§5.3.2.2); the Lasso code α of F̄_i (5.6); the neighbourhood saliency
     S_T = N(‖F̄_i − Dα‖₁), or N(‖α‖₀)·N(‖F̄_i − Dα‖₁) (5.7), with N(·) division by
-    the maximum; and the point saliency, a low quantile or the mean of the S_T of
-    the neighbourhoods containing the point.  Lengths are in units of h (mean
+    the maximum; and the point saliency, the mean (or a low quantile) of the S_T
+    of the neighbourhoods containing the point.  Lengths are in units of h (mean
     distance to the 6 nearest neighbours).
 
     Parameters
@@ -339,8 +339,9 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         λ of (5.6), ‖x − Dα‖₂² + λ‖α‖₁ (the thesis' value).
     measure : {"residual", "mdl"}, default='residual'
         Neighbourhood saliency: the coding residual, or the thesis' product (5.7).
-    accumulation : {"quantile", "mean"}, default='quantile'
-        Point saliency from the neighbourhoods containing it: a quantile, or the mean.
+    accumulation : {"mean", "quantile"}, default='mean'
+        Point saliency from the neighbourhoods containing it: their mean (the
+        thesis'), or a quantile.
     acc_quantile : float, default=0.1
         The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
@@ -367,11 +368,12 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     result does not depend on the model's units ("Descriptor"); the residual counts
     the normal block by its Euclidean length, for rotation invariance ("Residual
     norm"); the default measure drops ‖α‖₀, which is higher on flat regions than on
-    features ("Measure"); the default 10 % quantile narrows the plateau of high S_T
-    around a feature, which the mean widens ("Accumulation"); r is a fixed multiple
+    features ("Measure"); the point saliency is the thesis' mean over the
+    neighbourhoods, which keeps a feature's whole region salient, not only its
+    core ("Accumulation"); r is a fixed multiple
     of h, not Mitra & Nguyen's adaptive radius ("Radius"); the Lasso is solved by
     batched coordinate descent, stopped after 32 sweeps ("Lasso solver").  The
-    thesis' form: ``measure="mdl", accumulation="mean"``.  Deterministic.
+    thesis' form: ``measure="mdl"`` (``preset="thesis"``).  Deterministic.
 
     Examples
     --------
@@ -463,7 +465,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
                   hops: int = SALIENCY_HOPS, fbar_mean=None, reference=None,
                   radius: float = 3.0,
                   n_rays: int = 8, alpha: float = 0.9, measure: str = "residual",
-                  accumulation: str = "quantile", acc_quantile: float = 0.1,
+                  accumulation: str = "mean", acc_quantile: float = 0.1,
                   k_max: int = 32, preset: str | None = None) -> dict:
     """One tile of a tiled :func:`saliency_sparse_mdl` run (meshlab_bridge/tiles.py).
 

@@ -19,8 +19,9 @@ register(FilterSpec(
         "distinctness d) is Lasso-coded (λ = 0.9) against the descriptors of the "
         "neighbourhoods at the ends of rays cast in its tangent plane; the code's "
         "residual (and, with measure='mdl', its sparsity ‖α‖₀) is accumulated over the "
-        "overlapping neighbourhoods that contain each point (their 10 % quantile by "
-        "default, or their mean with accumulation='mean').  Written to vertex quality with a colour ramp, like "
+        "overlapping neighbourhoods that contain each point (their mean, as in the "
+        "thesis, or their 10 % quantile with accumulation='quantile').  Written to "
+        "vertex quality with a colour ramp, like "
         "MeshLab's curvature filters."
     ),
     attribute="saliency",
