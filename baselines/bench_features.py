@@ -17,6 +17,7 @@ for every set ("within w·h of a sharp edge", ``edge_distance_h``).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -28,6 +29,7 @@ from pcprep.baselines import classic, datasets, harness, meshes
 from pcprep.baselines._sample import _segment_distance
 from pcprep.filters import holes, sharp
 from pcprep.filters.metrics import precision_recall_f1
+from pcprep.filters.multiscale import trace_steps
 
 log = logging.getLogger("pcprep")
 
@@ -105,7 +107,9 @@ def _with_preset(fn):
 
 
 def _run_all(points, truth, ours_fn, raw_fn, baselines, seed, alt_truths=None,
-             care=None):
+             care=None, steps=False):
+    """Every method on one case; with ``steps``, ours also records the score of
+    its mask after each step (``out["ours"]["steps"]``)."""
     out = {}
     runs = [("ours", ours_fn), ("ours_raw", raw_fn)]
     preset = _with_preset(ours_fn)
@@ -114,10 +118,15 @@ def _run_all(points, truth, ours_fn, raw_fn, baselines, seed, alt_truths=None,
     for label, fn in runs:
         t = time.perf_counter()
         try:
-            res = fn(points, seed=seed)
+            traced = steps and label == "ours"
+            with trace_steps() if traced else contextlib.nullcontext() as trace:
+                res = fn(points, seed=seed)
             out[label] = dict(_score(res.mask, truth, care),
                               seconds=time.perf_counter() - t,
                               **_alt_scores(res.mask, alt_truths))
+            if traced:
+                out[label]["steps"] = [dict(_score(m, truth, care), step=name)
+                                       for name, m in trace]
         except Exception as exc:  # record, keep going
             out[label] = {"error": f"{type(exc).__name__}: {exc}"}
     for name in baselines:
@@ -448,7 +457,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
             pos = np.r_[pos, np.zeros(m, bool)]
             care = np.r_[care, np.zeros(m, bool)]  # outlier rows: not scored
             res = _run_all(c["points"], pos, sharp.detect_sharp_features, _sharp_raw,
-                           SHARP_BASELINES, seed, care=care)
+                           SHARP_BASELINES, seed, care=care, steps=True)
             log.info("bench_features: held-out sharp %s σ=%g: %s", spec["case"],
                      _noise_of(spec), {k: round(v.get("f1", -1), 3) for k, v in res.items()})
             sharp_rows.append({"data": spec["case"], "noise": _noise_of(spec),
@@ -514,7 +523,7 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
             pos = np.r_[pos, np.zeros(m, bool)]
             care = np.r_[care, np.zeros(m, bool)]
             res = _run_all(c["points"], pos, holes.detect_hole_boundaries, _holes_raw,
-                           HOLE_BASELINES, seed, care=care)
+                           HOLE_BASELINES, seed, care=care, steps=True)
             log.info("bench_features: held-out holes %s: %s", spec["case"],
                      {k: round(v.get("f1", -1), 3) for k, v in res.items()})
             hole_rows.append({"data": spec["case"], "n": len(c["points"]),
@@ -577,7 +586,8 @@ def _targets(sharp_rows, hole_rows) -> dict:
         v = d["results"]["ours"].get("f1")
         out["holes"].append(dict(data=d["data"], f1=v, ok=v is not None and v >= 0.85,
                                  precision=d["results"]["ours"].get("precision"),
-                                 recall=d["results"]["ours"].get("recall")))
+                                 recall=d["results"]["ours"].get("recall"),
+                                 steps=d["results"]["ours"].get("steps")))
     for d in sharp_rows:
         if d["split"] != "held-out":
             continue
@@ -587,10 +597,35 @@ def _targets(sharp_rows, hole_rows) -> dict:
         best = max(classic_f1) if classic_f1 else None
         need = 0.9 if d["noise"] == 0 else 0.8
         out["sharp"].append(dict(data=d["data"], noise=d["noise"], f1=v, need=need,
-                                 best_classic=best,
+                                 best_classic=best, steps=d["results"]["ours"].get("steps"),
                                  ok=v is not None and v >= need
                                  and (best is None or v >= best + 0.05)))
     return out
+
+
+def _steps_section(tg) -> list[str]:
+    """Markdown of the missed held-out cases' masks after each step of ours."""
+    md = []
+    for kind, label in (("sharp", "sharp features"), ("holes", "hole boundaries")):
+        missed = [t for t in tg[kind] if not t["ok"] and t.get("steps")]
+        if not missed:
+            continue
+        names = list(dict.fromkeys(s["step"] for t in missed for s in t["steps"]))
+        body = []
+        for t in missed:
+            by = {s["step"]: s for s in t["steps"]}
+            case = t["data"] + (f" ({t['noise']:g}h)" if kind == "sharp" else "")
+            body.append([case] + [f"{by[nm]['flagged']}: {by[nm]['precision']:.2f}/"
+                                  f"{by[nm]['recall']:.2f}" if nm in by else "-"
+                                  for nm in names])
+        md += [f"### Missed {label}: the mask after each step", "",
+               "Points flagged, then precision / recall against the truth, after each "
+               "step of ours in the order applied (a step not run, e.g. nothing left to "
+               "test, shows \"-\"): the step where recall falls is where the feature was "
+               "lost, the step where precision stays low is the one that let the false "
+               "detections through.", "",
+               harness.markdown_table(["case"] + names, body), ""]
+    return md
 
 
 def _markdown(quick, seed, sm, hm, summary, sharp_rows, smooth_rows, hole_rows,
@@ -659,7 +694,16 @@ def _markdown(quick, seed, sm, hm, summary, sharp_rows, smooth_rows, hole_rows,
             md.append(f"- holes miss: {t['data']}: F1 {_f(t['f1'])} (precision "
                       f"{_f(t['precision'])}, recall {_f(t['recall'])}) against 0.85")
     md += [f"- met: {s_ok}/{len(tg['sharp'])} sharp cases, {h_ok}/{len(tg['holes'])} hole "
-           "cases.", ""]
+           "cases."]
+    best_noisy = max((held_noisy[m] for m in SHARP_BASELINES if held_noisy[m] is not None),
+                     default=None)
+    if held_sharp["ours"] is not None and held_noisy["ours"] is not None:
+        md.append(f"- sharp, on the held-out means: clean {_f(held_sharp['ours'])} (target "
+                  f"0.9; best classic {_f(best_classic)} + 0.05), noisy "
+                  f"{_f(held_noisy['ours'])} (target 0.8; best classic {_f(best_noisy)} "
+                  "+ 0.05).")
+    md += [""]
+    md += _steps_section(tg)
     md += ["## Sharp features", "", _table(sharp_rows, sm),
            "## Clouds without sharp features", "",
            "Percentage of points each detector flags as sharp (every one is a false "

@@ -31,8 +31,8 @@ from ._border import (border_distance, border_gap, border_radius, near_any,
                       strip_extent, track_border)
 from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
-                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
-                         score_rows)
+                         otsu_threshold, prepare_cloud, record_step, scale_moments,
+                         scale_sizes, score_rows)
 from .neighbors import average_spacing, build_tree
 
 log = logging.getLogger("pcprep")
@@ -256,15 +256,16 @@ def _keep(mask: np.ndarray, test: np.ndarray, what: str) -> None:
     """``mask &= test``, logged."""
     n_det = int(mask.sum())
     mask &= test
+    record_step(what, mask)
     log.info("%s: %s keeps %d of %d detected points", _FUNC, what, int(mask.sum()), n_det)
 
 
 def _pointwise(mask, feats: HoleFeatures, bdist, cfg: _HoleConfig, rules: _HoleRules):
     """The tests on each detection's own neighbourhood, in place."""
     if cfg.min_shift > 0:
-        mask &= feats.shift_mean >= cfg.min_shift
+        _keep(mask, feats.shift_mean >= cfg.min_shift, "shift gate")
     if bdist is not None:
-        _keep(mask, bdist <= cfg.rim_width, "localisation")
+        _keep(mask, bdist <= cfg.rim_width, "border distance")
     if rules.flatness:
         _keep(mask, feats.variation <= cfg.max_variation, "flatness gate")
     if rules.strip_extent:
@@ -279,6 +280,7 @@ def _support(take, mask, h: float, min_support: int) -> None:
     support = build_tree(p).query_ball_point(
         p, _SUPPORT_RADIUS * h, return_length=True) - 1
     mask[det[support < min_support]] = False
+    record_step("border support", mask)
     log.info("%s: border support keeps %d of %d detected points", _FUNC,
              int(mask.sum()), len(det))
 
@@ -290,6 +292,7 @@ def _smallest_hole(take, mask, n: int, h: float, min_radius: float | None) -> No
     det = np.flatnonzero(mask)
     radius = border_radius(take(det), _SUPPORT_RADIUS * h) / h
     mask[det[radius < r_min]] = False
+    record_step("smallest hole", mask)
     log.info("%s: borders of radius >= %.3g h keep %d of %d detected points", _FUNC,
              r_min, int(mask.sum()), len(det))
 
@@ -316,6 +319,7 @@ def _border_row(take, mask, gap: np.ndarray, h: float, row_angle: float) -> np.n
     out[tracked] = True
     rest = det[~out[det]]
     out[rest[near_any(take(tracked), take(rest), _ROW_BAND * h)]] = True
+    record_step("border row and band", out)
     log.info("%s: border row (angular gap > %.3g deg): %d samples tracked from %d "
              "detections; %d of the %d detected points kept within %.3g h of it", _FUNC,
              row_angle, len(tracked), int(row[det].sum()), int(out[det].sum()), n_det,
@@ -346,6 +350,7 @@ def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, gap,
     row's empty angle.  Returns the mask and the threshold."""
     T = _threshold(score, cfg, rules)
     mask = score > T
+    record_step("threshold", mask)
     _pointwise(mask, feats, bdist, cfg, rules)
     return _chains(take, mask, feats, gap, cfg, rules), T
 

@@ -17,6 +17,8 @@ are in docs/decisions/features.md.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -38,6 +40,40 @@ MOMENT_CHUNK = CHUNK // 4
 # ---------------------------------------------------------------------------
 # scales and moments
 # ---------------------------------------------------------------------------
+
+#: the steps of a detector run inside ``trace_steps()`` (None outside one)
+_TRACE: contextvars.ContextVar = contextvars.ContextVar("pcprep_detection_steps",
+                                                        default=None)
+
+
+@contextlib.contextmanager
+def trace_steps():
+    """Record the detection mask after each step of the detectors run inside the
+    block (threshold, then each gate in the order applied).
+
+    Yields a list that fills with ``(step name, mask copy)`` pairs; the benchmark
+    reads it to say at which step a missed feature was dropped.  Outside the
+    block nothing is recorded and nothing is copied.
+
+    >>> with trace_steps() as steps:
+    ...     record_step("threshold", np.array([True, False]))
+    >>> [name for name, _ in steps]
+    ['threshold']
+    """
+    steps: list = []
+    token = _TRACE.set(steps)
+    try:
+        yield steps
+    finally:
+        _TRACE.reset(token)
+
+
+def record_step(name: str, mask: np.ndarray) -> None:
+    """Append a copy of ``mask`` under ``name`` to the active ``trace_steps`` list."""
+    steps = _TRACE.get()
+    if steps is not None:
+        steps.append((name, np.array(mask, dtype=bool, copy=True)))
+
 
 def scale_sizes(k_min: int, k_max: int, n_scales: int) -> np.ndarray:
     """Neighbourhood sizes of the scales (each counts the point itself).

@@ -29,8 +29,8 @@ from ._crease import (SPREAD_K, crease_distance, localisation_k, noise_level,
 from ._params import Param, preset_param, resolve_params, validate_params
 from ._validation import PointCloudError
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
-                         otsu_threshold, prepare_cloud, scale_moments, scale_sizes,
-                         score_rows)
+                         otsu_threshold, prepare_cloud, record_step, scale_moments,
+                         scale_sizes, score_rows)
 from .neighbors import SPACING_K, average_spacing, spacing_from_rows
 
 log = logging.getLogger("pcprep")
@@ -261,12 +261,14 @@ def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float,
               cfg: _SharpConfig, rules: _SharpRules):
     """The crease-angle gate and the localisation of the thresholded ``mask``
     (changed in place).  Every test reads one detected point's neighbourhood
-    only, given the cloud-wide noise level ``sigma``.  Returns ``spread, cdist, limit`` (None for a step not run)."""
+    only, given the cloud-wide noise level ``sigma``.  Returns ``spread, cdist,
+    limit`` (None for a step not run)."""
     spread = cdist = limit = None
     if rules.angle_gate and cfg.min_angle > 0 and mask.any():
         spread = normal_spread(pts, mask, normals, tree=tree)
         n_det = int(mask.sum())
         mask &= spread >= cfg.min_angle
+        record_step("crease-angle gate", mask)
         log.info("%s: crease-angle gate (%.3g deg) keeps %d of %d detected points",
                  _FUNC, cfg.min_angle, int(mask.sum()), n_det)
     if rules.localise and mask.any():
@@ -274,6 +276,7 @@ def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float,
                                       cfg=cfg, rules=rules, tree=tree)
         n_det = int(mask.sum())
         mask &= cdist <= limit
+        record_step("localisation", mask)
         log.info("%s: localisation keeps %d of %d detected points", _FUNC,
                  int(mask.sum()), n_det)
     return spread, cdist, limit
@@ -294,6 +297,7 @@ def _select(pts, tree, ks, feats: SharpFeatures, codes: CodeLengths, cfg: _Sharp
     score = codes.score
     T = threshold(score, cfg, rules)
     mask = score > T                                            # (7.11)
+    record_step("threshold", mask)
     sigma = cloud_state(feats.noise_column)
     # ridge strength: code length × mean Pd (h) over the larger half of the scales
     spread, cdist, limit = _localise(pts, tree, mask, feats.normals, score * feats.ridge_pd,
