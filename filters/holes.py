@@ -297,24 +297,20 @@ def _smallest_hole(take, mask, n: int, h: float, min_radius: float | None) -> No
              r_min, int(mask.sum()), len(det))
 
 
-def _border_row(take, mask, gap: np.ndarray, h: float, row_angle: float) -> np.ndarray:
+def _border_row(take, mask, row_near, h: float, row_angle: float) -> np.ndarray:
     """The border row and the band along it.
 
-    Row samples are those with an empty angle (``gap``, radians, every row) >
-    ``row_angle``.  The detected ones seed a tracking along the row: the
-    other row samples within ``_ROW_REACH`` h of a detection are chained to
-    them within ``_TRACK_LINK`` h.  The result is the tracked row and the
-    detections within ``_ROW_BAND`` h of it.
+    Row samples are those with an empty angle > ``row_angle``.  The row
+    samples within ``_ROW_REACH`` h of a detection (``row_near``) are chained
+    within ``_TRACK_LINK`` h, and the chains that hold a detection are kept
+    (the tracked row).  The result is the tracked row and the detections
+    within ``_ROW_BAND`` h of it.
     """
-    n_det = int(mask.sum())
-    row = gap > np.radians(row_angle)
     det = np.flatnonzero(mask)
-    other = np.flatnonzero(row & ~mask)
-    cand = np.zeros(len(mask), dtype=bool)
-    cand[det[row[det]]] = True
-    cand[other[near_any(take(det), take(other), _ROW_REACH * h)]] = True
-    rows = np.flatnonzero(cand)
-    tracked = rows[track_border(take(rows), mask[rows], cand[rows], _TRACK_LINK * h)]
+    rows = row_near(det, _ROW_REACH * h, np.radians(row_angle))
+    seeds = mask[rows]
+    tracked = rows[track_border(take(rows), seeds, np.ones(len(rows), dtype=bool),
+                                _TRACK_LINK * h)]
     out = np.zeros(len(mask), dtype=bool)
     out[tracked] = True
     rest = det[~out[det]]
@@ -322,45 +318,68 @@ def _border_row(take, mask, gap: np.ndarray, h: float, row_angle: float) -> np.n
     record_step("border row and band", out)
     log.info("%s: border row (angular gap > %.3g deg): %d samples tracked from %d "
              "detections; %d of the %d detected points kept within %.3g h of it", _FUNC,
-             row_angle, len(tracked), int(row[det].sum()), int(out[det].sum()), n_det,
+             row_angle, len(tracked), int(seeds.sum()), int(out[det].sum()), len(det),
              _ROW_BAND)
     return out
 
 
-def _chains(take, mask, feats: HoleFeatures, gap, cfg: _HoleConfig,
+def _chains(take, mask, feats: HoleFeatures, row_near, cfg: _HoleConfig,
             rules: _HoleRules) -> np.ndarray:
     """The tests along the border: support, the smallest hole, the border row
     and the band along it, the same on every sampling.  They read the
-    detected points and the row candidates only, through ``take(rows)``;
-    ``gap()`` gives every row's empty angle.  Border chains are cloud-wide,
-    so a tiled run runs this on the gathered detections."""
+    detected points and the row samples near them only, through
+    ``take(rows)`` and ``row_near(rows, radius, angle)`` (the rows within
+    ``radius`` of ``rows`` whose empty angle exceeds ``angle``, sorted).
+    Border chains are cloud-wide, so a tiled run runs this on the gathered
+    detections."""
     if rules.support and cfg.min_support > 0 and mask.any():
         _support(take, mask, feats.h, cfg.min_support)
     if rules.smallest_hole and mask.any():
         _smallest_hole(take, mask, len(mask), feats.h, cfg.min_radius)
     if rules.border_row and mask.any():
-        mask = _border_row(take, mask, gap(), feats.h, cfg.row_angle)
+        mask = _border_row(take, mask, row_near, feats.h, cfg.row_angle)
     return mask
 
 
-def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, gap,
+def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, row_near,
                    cfg: _HoleConfig, rules: _HoleRules = DEFAULT_RULES):
     """Threshold the scores, then the point-wise tests and the tests along the
-    border; ``take(rows)`` gives rows' centred positions, ``gap()`` every
-    row's empty angle.  Returns the mask and the threshold."""
+    border (``take`` and ``row_near`` as in ``_chains``).  Returns the mask and
+    the threshold."""
     T = _threshold(score, cfg, rules)
     mask = score > T
     record_step("threshold", mask)
     _pointwise(mask, feats, bdist, cfg, rules)
-    return _chains(take, mask, feats, gap, cfg, rules), T
+    return _chains(take, mask, feats, row_near, cfg, rules), T
 
 
-def _select(pts, ks, feats: HoleFeatures, bdist, codes: CodeLengths, cfg: _HoleConfig,
-            rules: _HoleRules) -> HoleResult:
+def rows_by_gap(take, gap):
+    """``row_near`` of a cloud whose every row's empty angle ``gap`` is known
+    (a tiled run gathers it from the tiles)."""
+    def row_near(det, radius, angle):
+        row = np.flatnonzero(np.asarray(gap) > angle)
+        return row[near_any(take(det), take(row), radius)]
+    return row_near
+
+
+def _row_near_in_memory(pts, tree, near):
+    """``row_near`` of a whole cloud: the rows within reach come from the tree,
+    and only their empty angles are computed."""
+    def row_near(det, radius, angle):
+        hits = tree.query_ball_point(pts[det], np.nextafter(radius, np.inf))
+        rows = np.unique(np.concatenate([np.asarray(hit, dtype=np.int64) for hit in hits]
+                                        + [np.zeros(0, np.int64)]))
+        rows = rows[border_gap(pts, near[rows]) > angle]
+        return rows[near_any(pts[det], pts[rows], radius)]
+    return row_near
+
+
+def _select(pts, tree, ks, feats: HoleFeatures, bdist, codes: CodeLengths,
+            cfg: _HoleConfig, rules: _HoleRules) -> HoleResult:
     """``select_borders`` over the whole cloud, and the result."""
     score = codes.score
     mask, T = select_borders(lambda rows: pts[rows], score, feats, bdist,
-                             lambda: border_gap(pts, feats.near), cfg, rules)
+                             _row_near_in_memory(pts, tree, feats.near), cfg, rules)
     log.info("%s: threshold %.4g selects %d of %d points", _FUNC, T, int(mask.sum()),
              len(pts))
     return HoleResult(mask=mask, score=score, threshold=float(T),
@@ -382,7 +401,7 @@ def _run(points, normals, cfg: _HoleConfig, stage: ScoreConfig,
     # quantities kept apart in ``feats`` and ``bdist``
     F = _orient(feats.features)
     codes = score_rows(F, fit_score_model(F, stage), stage, overwrite=True)
-    return _select(pts, ks, feats, bdist, codes, cfg, rules)
+    return _select(pts, tree, ks, feats, bdist, codes, cfg, rules)
 
 
 @validate_params(*PARAMS, presets={"thesis": THESIS})

@@ -949,9 +949,10 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
                                variation=cols["variation"], near=None,
                                shift_mean=cols["shift_mean"], reach=None)
     centre = src.centre
-    mask, T = holes.select_borders(lambda rows: np.asarray(src.xyz[rows]) - centre, score,
-                                   feats, cols["border_distance"] if rules.rim_distance
-                                   else None, lambda: cols["gap"], cfg, rules)
+    take = lambda rows: np.asarray(src.xyz[rows]) - centre  # noqa: E731
+    mask, T = holes.select_borders(take, score, feats, cols["border_distance"]
+                                   if rules.rim_distance else None,
+                                   holes.rows_by_gap(take, cols["gap"]), cfg, rules)
     mask = runner.on_disk("mask", mask)
     quality = runner.map("quality", lambda v: v.astype(np.float64), mask)
     return TiledResult({"mask": mask, "score": score, "quality": quality},

@@ -15,7 +15,7 @@ from pcprep.filters._border import (border_distance, border_gap, border_radius,
 from pcprep.filters.holes import HoleResult, hole_features
 from pcprep.filters.metrics import precision_recall_f1
 from pcprep.filters.multiscale import scale_sizes
-from pcprep.filters.neighbors import build_tree, centered, knn
+from pcprep.filters.neighbors import average_spacing, build_tree, centered, knn
 
 from helpers import random_rotation
 
@@ -357,6 +357,24 @@ def test_private_path_with_default_rules_is_the_public_function(disc, disc_resul
 
 
 # --------------------------------------------------------------- border helpers
+def test_row_samples_near_detections_in_memory_and_from_gathered_angles(holed_cube):
+    # the one-piece path computes the empty angle of the rows near the
+    # detections only; a tiled run reads every row's angle: same rows
+    s = holed_cube
+    pts = centered(s.points)[0]
+    tree = build_tree(pts)
+    near = knn(pts, 16, tree=tree)[1]
+    det = np.flatnonzero(np.random.default_rng(1).random(len(pts)) < 0.02)
+    every = holes.rows_by_gap(lambda r: pts[r], border_gap(pts, near))
+    local = holes._row_near_in_memory(pts, tree, near)
+    h = average_spacing(pts)
+    for radius, angle in ((1.0, np.pi / 2), (2.0, np.pi / 3)):
+        a = every(det, radius * h, angle)
+        np.testing.assert_array_equal(local(det, radius * h, angle), a)
+        assert len(a) > 0
+    assert len(local(det[:0], h, np.pi / 2)) == 0
+
+
 def test_near_any_is_a_brute_force_radius_test(rng):
     p, q = rng.normal(size=(50, 3)), rng.normal(size=(400, 3))
     d = np.linalg.norm(q[:, None] - p[None], axis=2).min(axis=1)
