@@ -28,7 +28,8 @@ _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 # ---------------------------------------------------------------------------
 # n⁰ (4.6)-(4.9)
 
-def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
+def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int,
+                  printed: bool = False) -> np.ndarray:
     """n⁰ by the reweighted eigen-iteration (4.9), with the offset τ of (4.5).
 
     Pass 1 is θ-weighted PCA (ω = θ, n = 0).  Then every point takes, among its
@@ -36,15 +37,24 @@ def _init_normals(ctx: _Ctx, init_iter: int, n_cand: int) -> np.ndarray:
     of lowest robust loss Σ_j θ(1 − ψ) (τ by (4.14) for each candidate).  Later
     passes take the smallest eigenvector of Σ_j ω_j (c_i − p_j)(c_i − p_j)ᵀ with
     c_i = p_i − τ_i n_i and ω = ψθ/|h_j − τ_i| (θ where |h_j − τ_i| < GUARD).
+
+    ``printed``: (4.9) as the thesis prints it, τ = 0 throughout: every pass
+    takes the smallest eigenvector of Σ_j ω_j (p_i − p_j)(p_i − p_j)ᵀ about p_i
+    itself, pass 1 with ω = θ (Cm(0), n⁰ = 0), later passes with
+    ω = ψθ/|h_j| (θ where |h_j| < GUARD); no candidate search (``n_cand`` is
+    ignored).  NumPy passes only.
     """
     n = len(ctx.x)
     normals = np.zeros((n, 3))
     tau = np.zeros(n)
     k = ctx.idx.shape[1]
+    n_cand = 0 if printed else n_cand
     cols = np.unique(np.linspace(1, k - 1, min(n_cand, k - 1)).round().astype(int))
+    compiled = _denoise_jit.eigen_rows if _kernels.ENABLED and not printed else None
     for it in range(init_iter):
-        new, tau = _rows_pass(ctx, _denoise_jit.eigen_rows if _kernels.ENABLED else None,
-                              partial(_eigen_pass, ctx, normals, tau, first=it == 0),
+        new, tau = _rows_pass(ctx, compiled,
+                              partial(_eigen_pass, ctx, normals, tau, first=it == 0,
+                                      printed=printed),
                               normals, tau, it == 0)
         if it > 0:  # keep each normal's sign from pass to pass
             flip = np.einsum("ij,ij->i", new, normals) < 0
@@ -74,10 +84,19 @@ def _rows_pass(ctx: _Ctx, compiled, reference, normals, arg, *extra):
     return out_n, out_t
 
 
-def _eigen_pass(ctx: _Ctx, normals, tau, s: int, e: int, first: bool):
-    """One pass of (4.9) on rows s:e: (normals, τ)."""
+def _eigen_pass(ctx: _Ctx, normals, tau, s: int, e: int, first: bool,
+                printed: bool = False):
+    """One pass of (4.9) on rows s:e: (normals, τ); ``printed``: about p_i, τ = 0."""
     d, _, _, theta = _geometry(ctx, s, e)
-    if first:
+    if printed:
+        if first:
+            om = theta
+        else:
+            hgt = _dot(d, normals[s:e])
+            om = _eta(hgt, _psi(hgt, ctx.sh2), theta)
+        dc = d
+        t_new = np.zeros(e - s)
+    elif first:
         wsum = theta.sum(axis=1, keepdims=True)
         om = theta / wsum
         dc = [da - _rowsum(om * da)[:, None].astype(WORK) for da in d]

@@ -48,11 +48,12 @@ FIT_PCA_K = 16
 #: the method as printed (Algorithm 4.1): λ = 0.2, the component-wise ℓ1 TV of
 #: (4.5), σ_h = 0.7h and σ_d = r = 3h (Table 4.1, fandisk and rocker arm), 16 outer
 #: iterations, the inner loop run to its stopping rule, n⁰ by (4.9), edge correction
-#: (4.18)-(4.19) on, and none of the added steps (curvature offset, final projection,
-#: freezing curved points); k_max wide enough that the 3h ball is not cut
+#: (4.18)-(4.19) on, and none of the added steps (n⁰ about the robust plane,
+#: curvature offset, final projection, freezing curved points); k_max wide enough
+#: that the 3h ball is not cut
 THESIS = {"lambda_tv": 0.2, "tv_norm": "l1", "sigma_h": 0.7, "sigma_d": 3.0, "radius": 3.0,
           "n_iter": 16, "curved_iter": 16, "inner_iter": 10, "init_iter": 3,
-          "edge_correction": True, "curvature_offset": False, "final_projection": False,
+          "robust_init": False, "edge_correction": True, "curvature_offset": False, "final_projection": False,
           "k_max": 64}
 
 PARAMS = (
@@ -69,6 +70,7 @@ PARAMS = (
     Param("curved_iter", int, low=0, high=500, unit="count", advanced=True),
     Param("inner_iter", int, low=1, high=100, unit="count", advanced=True),
     Param("init_iter", int, low=1, high=50, unit="count", advanced=True),
+    Param("robust_init", bool, advanced=True),
     Param("tol", float, low=0.0, high=10.0, unit="h", advanced=True),
     Param("edge_correction", bool),
     Param("curvature_offset", bool, advanced=True),
@@ -133,6 +135,7 @@ class _Config:
     curved_iter: int
     inner_iter: int
     init_iter: int
+    robust_init: bool
     tol: float
     edge_correction: bool
     curvature_offset: bool
@@ -147,7 +150,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
                   sigma_n_deg: float = 15.0, rho: float = 0.7, delta: float = 1e-4,
                   epsilon: float = 4.0, edge_threshold: float = 0.5, n_iter: int = 6,
                   curved_iter: int = 2, inner_iter: int = 2, init_iter: int = 3,
-                  tol: float = 1e-3, edge_correction: bool = False,
+                  robust_init: bool = True, tol: float = 1e-3, edge_correction: bool = False,
                   curvature_offset: bool = True, tv_norm: str = "l2", k_max: int = 32,
                   final_projection: bool = True, preset: str | None = None
                   ) -> DenoiseResult:
@@ -191,6 +194,9 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
         Most (τ, n) passes per outer iteration.
     init_iter : int, default=3
         Passes of the eigen-iteration (4.9) that gives n⁰.
+    robust_init : bool, default=True
+        (4.9) about the robust plane p_i − τ_i n_i, with a search over neighbour
+        normals (False: as printed, about p_i with τ = 0).
     tol : float, default=1e-3
         The inner loop stops when the RMS move of p − τn is below tol.
     edge_correction : bool, default=False
@@ -229,7 +235,7 @@ def denoise_l1_tv(points, normals=None, *, lambda_tv: float = 0.4, sigma_h: floa
     projection counter the shrinkage of curved parts ("Bounded position update",
     "Per-point stopping on curved parts", "Final projection").  The thesis' form:
     tv_norm="l1", curvature_offset=False, curved_iter ≥ n_iter,
-    final_projection=False, edge_correction=True, radius=sigma_d.
+    final_projection=False, edge_correction=True, radius=sigma_d, robust_init=False.
 
     Examples
     --------
@@ -283,7 +289,7 @@ def _iterate(ctx: _Ctx, x0: np.ndarray, cfg: _Config, sync=None):
     of points the last edge correction moved.
     """
     n = len(ctx.x)
-    nrm = _init_normals(ctx, cfg.init_iter, N_CAND)
+    nrm = _init_normals(ctx, cfg.init_iter, N_CAND, printed=not cfg.robust_init)
     history = []
     vn = np.ones(n)
     n_corr = 0

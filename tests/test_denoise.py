@@ -336,3 +336,50 @@ def test_private_config_path_equals_the_public_call(noisy_cube):
     b = denoise_l1_tv(pts, n_iter=2, tv_norm="l1")
     assert np.array_equal(a.points, b.points) and np.array_equal(a.normals, b.normals)
     assert _jaccard(a.edge_mask, b.edge_mask) == 1.0
+
+
+def test_printed_initial_normals_known_answer():
+    """(4.9) as printed: pass 1 is the smallest eigenvector of Σ θ (p_i − p_j)(p_i − p_j)ᵀ
+    about p_i itself (Cm(0)); pass 2 reweights by ψθ/|h_j|, h_j = n¹ᵀ(p_i − p_j)."""
+    from pcprep.filters._denoise_kernels import _prepare
+    from pcprep.filters._denoise_steps import _init_normals
+    from pcprep.filters.denoise import _DEFAULTS, _context
+
+    _, noisy = _noisy_plane(n=800, sigma=0.5, seed=2)
+    x, _, _, _, idx, _ = _prepare(noisy, None, 32, "t")
+    ctx = _context(x, idx, _DEFAULTS)
+    r2, sd2, sh2 = ctx.r2, ctx.sd2, ctx.sh2
+
+    def brute(prev):
+        out = np.zeros((len(x), 3))
+        for i in range(len(x)):
+            d = x[i] - x[idx[i]]
+            d2 = (d * d).sum(1)
+            w = np.exp(-d2 / sd2) * (d2 <= r2)
+            if prev is not None:
+                hj = d @ prev[i]
+                a = np.abs(hj)
+                w = np.where(a < 1e-3, w, np.exp(-hj ** 2 / sh2) * w / np.maximum(a, 1e-300))
+            out[i] = np.linalg.eigh((w[:, None] * d).T @ d)[1][:, 0]
+        return out
+
+    def angle(a, b):
+        return np.degrees(np.arccos(np.clip(np.abs((a * b).sum(1)), 0, 1)))
+
+    one = _init_normals(ctx, 1, 8, printed=True)
+    ref1 = brute(None)
+    assert angle(one, ref1).max() < 1e-3
+    two = _init_normals(ctx, 2, 8, printed=True)
+    assert angle(two, brute(ref1)).max() < 1e-3
+    # not the default n⁰ (weighted mean, robust plane, candidate search)
+    assert angle(_init_normals(ctx, 2, 8), two).max() > 1.0
+
+
+def test_thesis_preset_takes_the_printed_initial_normals(noisy_cube):
+    from pcprep.filters.denoise import THESIS
+
+    assert THESIS["robust_init"] is False
+    _, noisy = noisy_cube
+    a = denoise_l1_tv(noisy[:1500], n_iter=1, robust_init=False)
+    b = denoise_l1_tv(noisy[:1500], n_iter=1)
+    assert not np.allclose(a.normals, b.normals)
