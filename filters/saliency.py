@@ -37,10 +37,17 @@ MIN_POINTS = 10
 LASSO_ITER = 32
 LASSO_TOL = 1e-7
 
-#: the method as printed (§5.3): the MDL product (5.7) and mean accumulation, with
-#: the thesis' λ = 0.9; the radius stays a multiple of h (the thesis' density- and
-#: curvature-adaptive radius is not reproduced)
-THESIS = {"measure": "mdl", "accumulation": "mean", "alpha": 0.9}
+#: the method as printed (§5.3): the MDL product (5.7), mean accumulation, the
+#: thesis' λ = 0.9 and the density- and curvature-adaptive radius of Mitra &
+#: Nguyen (2003), here between 2h and 4h (k_max wide enough to hold 4h)
+THESIS = {"measure": "mdl", "accumulation": "mean", "alpha": 0.9,
+          "adaptive_radius": True, "radius": 4.0, "k_max": 64}
+
+#: Mitra & Nguyen (2003): r = ((c1 σ/√(ερ) + c2 σ²)/κ)^(1/3); the thesis does not
+#: give the constants, these are c1 = 1, c2 = 4, ε = 0.1; the density ρ is read
+#: at the 15th neighbour, as their iteration starts; the smallest radius 2h keeps
+#: the quadric fit well posed
+MN_C1, MN_C2, MN_EPS, MN_K, MN_MIN_RADIUS = 1.0, 4.0, 0.1, 15, 2.0
 
 PARAMS = (
     Param("radius", float, low=1.0, high=50.0, unit="h"),
@@ -50,6 +57,7 @@ PARAMS = (
     Param("accumulation", str, choices=("quantile", "mean")),
     Param("acc_quantile", float, low=0.0, high=1.0, unit="fraction", advanced=True),
     Param("k_max", int, low=8, high=512, unit="count", advanced=True),
+    Param("adaptive_radius", bool, advanced=True),
     preset_param({"thesis": THESIS}),
 )
 
@@ -78,8 +86,8 @@ class SaliencyResult:
         Index of the point whose neighbourhood is each atom.
     h : float
         Average spacing of the input.
-    radius : float
-        Neighbourhood radius r in input units.
+    radius : float or (n,) float
+        Neighbourhood radius r in input units (per point with ``adaptive_radius``).
     n_unconverged : int
         Lasso problems not certified optimal within ``LASSO_ITER`` sweeps (their
         atoms are near-duplicates).
@@ -94,7 +102,7 @@ class SaliencyResult:
     curvature: np.ndarray
     atoms: np.ndarray
     h: float
-    radius: float
+    radius: float | np.ndarray
     n_unconverged: int
 
 
@@ -143,7 +151,7 @@ class _Hood:
 
 
 def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
-                   tile=None) -> tuple[_Hood, float]:
+                   tile=None, distances: bool = False) -> tuple[_Hood, float]:
     """Radius neighbourhoods (radius ``radius_h`` × h) capped at ``k_max`` points and
     the average spacing h, from ONE chunked k-NN query: h is the mean distance to
     the 6 nearest neighbours (columns 1-6 of the same query, thesis §4.5.1).
@@ -152,7 +160,8 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     ``tile = (h, n_total)``: the points are one tile of a cloud of ``n_total``
     points whose spacing is ``h``; that h and the whole cloud's neighbour count
     are used, and a third value, each row's distance to its last neighbour, is
-    returned."""
+    returned.  ``distances``: the (n, k) float32 neighbour distances are returned
+    as a third value instead (one-piece runs)."""
     tree = build_tree(points) if tree is None else tree
     n = len(points)
     k = min(max(k_max, SPACING_K + 1), n if tile is None else min(n, tile[1]))
@@ -177,12 +186,67 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
                               "neighbours (h = 0)")
     r = np.float32(radius_h * h * (1.0 + 1e-6))
     count = np.maximum((dist <= r).sum(axis=1), 1)
+    if distances:
+        return _Hood(idx, count), h, dist
     return _Hood(idx, count), h
 
 
-def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
+def mitra_nguyen_radius(kappa: np.ndarray, rho: np.ndarray, sigma: float, hi: float,
+                        lo: float = MN_MIN_RADIUS) -> np.ndarray:
+    """Per-point neighbourhood radius after Mitra & Nguyen (2003), in h:
+    r = ((c1 σ/√(ερ) + c2 σ²)/κ)^(1/3), clipped to [``lo``, ``hi``].
+
+    The radius that balances the normal's error from curvature (growing with r)
+    against the error from noise (shrinking with r and with the density).
+
+    Parameters
+    ----------
+    kappa : (n,) float
+        Curvature magnitude in 1/h (0: flat, the radius goes to ``hi``).
+    rho : (n,) float
+        Sampling density in points per h².
+    sigma : float
+        Noise level in h (0: clean, the radius goes to ``lo``).
+    hi, lo : float
+        Largest and smallest radius, in h.
+
+    >>> mitra_nguyen_radius(np.array([0.0, 0.1, 10.0]), np.ones(3), 0.3, 4.0).round(2).tolist()
+    [4.0, 2.36, 2.0]
+    """
+    num = MN_C1 * sigma / np.sqrt(MN_EPS * np.maximum(rho, 1e-300)) + MN_C2 * sigma * sigma
+    with np.errstate(divide="ignore"):
+        r = np.cbrt(num / np.asarray(kappa, dtype=np.float64))
+    return np.clip(np.nan_to_num(r, nan=hi, posinf=hi), lo, hi)
+
+
+def _adaptive_hood(points, hood: _Hood, dist: np.ndarray, h: float, radius: float):
+    """The neighbourhoods of radius ``mitra_nguyen_radius`` (at most ``radius`` h):
+    κ from the quadric fits at the fixed radius, ρ at the 15th neighbour, σ̂ the
+    cloud's noise level from the 8-NN covariances (√ of the median smallest
+    eigenvalue, as the sharp detector's).  Returns the new neighbourhoods and the
+    radii in h."""
+    from ._crease import noise_level
+
+    _, _, kappa = local_frames_and_curvature(points, hood, radius * h)
+    k = min(MN_K, dist.shape[1] - 1)
+    d15 = np.maximum(dist[:, k].astype(np.float64) / h, 1e-12)
+    rho = k / (np.pi * d15 * d15)
+    nb = points[hood.idx[:, :min(8, hood.idx.shape[1])]]
+    c = nb - nb.mean(axis=1, keepdims=True)
+    lam0 = np.linalg.eigvalsh(np.einsum("cki,ckj->cij", c, c) / nb.shape[1])[:, 0]
+    sigma = noise_level(lam0 / (h * h))
+    r_h = mitra_nguyen_radius(kappa * h, rho, sigma, radius)
+    count = np.maximum((dist <= (r_h * h * (1.0 + 1e-6))[:, None]).sum(axis=1), 1)
+    log.info("saliency_sparse_mdl: Mitra-Nguyen radius, noise %.3g h: median %.3g h "
+             "(%.3g-%.3g h)", sigma, float(np.median(r_h)), float(r_h.min()),
+             float(r_h.max()))
+    return _Hood(hood.idx, count), r_h
+
+
+def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r
                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """PCA frames and quadric curvatures of every neighbourhood.
+    """PCA frames and quadric curvatures of every neighbourhood of radius ``r``
+    (one radius, or one per point).
 
     Returns
     -------
@@ -194,9 +258,10 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
     mean_abs : (n,) float
         √(k1² + k2²) of the same fit (used by the curvature-magnitude baseline).
     """
-    if _kernels.ENABLED:
+    if _kernels.ENABLED and np.ndim(r) == 0:
         return _geometry(points, hood, r, 0)[:3]
     n = len(points)
+    radii = np.broadcast_to(np.asarray(r, dtype=np.float64), (n,))
     frames = np.zeros((n, 3, 3))
     gauss = np.zeros(n)
     total = np.zeros(n)
@@ -212,7 +277,8 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         _, vec = np.linalg.eigh(cov)
         fr = _canonical_signs(vec[:, :, ::-1], diff)  # e1, e2, normal
         frames[s:e] = fr
-        loc = np.matmul(nb - points[s:e, None, :], fr) / r
+        rc = radii[s:e]
+        loc = np.matmul(nb - points[s:e, None, :], fr) / rc[:, None, None]
         u, v, z = loc[..., 0], loc[..., 1], loc[..., 2]
         A = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=-1) * w[..., None]
         At = A.transpose(0, 2, 1)
@@ -222,9 +288,9 @@ def local_frames_and_curvature(points: np.ndarray, hood: _Hood, r: float
         q = np.linalg.solve(M, np.matmul(At, (z * w)[:, :, None]))[:, :, 0]
         a, b, c, du, dv = q[:, 0], q[:, 1], q[:, 2], q[:, 3], q[:, 4]
         g2 = 1.0 + du * du + dv * dv
-        gauss[s:e] = (4.0 * a * c - b * b) / (g2 * g2) / (r * r)
+        gauss[s:e] = (4.0 * a * c - b * b) / (g2 * g2) / (rc * rc)
         # principal curvatures of the Hessian (small-slope approximation)
-        total[s:e] = 2.0 * np.sqrt(a * a + c * c + 0.5 * b * b) / r
+        total[s:e] = 2.0 * np.sqrt(a * a + c * c + 0.5 * b * b) / rc
     return frames, gauss, total
 
 
@@ -260,11 +326,12 @@ def orient_normals_hood(points: np.ndarray, normals: np.ndarray, hood: _Hood,
                               mirror=True)
 
 
-def _geometry(points: np.ndarray, hood: _Hood, r: float, n_rays: int):
+def _geometry(points: np.ndarray, hood: _Hood, r, n_rays: int):
     """Frames, Gaussian and total curvature (:func:`local_frames_and_curvature`)
     and the ray atoms (:func:`_ray_atoms`) of every neighbourhood; in one
-    compiled pass when numba is available, else by the NumPy functions."""
-    if _kernels.ENABLED:
+    compiled pass when numba is available and ``r`` is one radius, else by the
+    NumPy functions (a radius per point: ``adaptive_radius``)."""
+    if _kernels.ENABLED and np.ndim(r) == 0:
         n = len(hood.idx)
         frames, gauss, total = np.zeros((n, 3, 3)), np.zeros(n), np.zeros(n)
         atoms = np.zeros((n, int(n_rays)), dtype=np.int32)
@@ -278,19 +345,23 @@ def _geometry(points: np.ndarray, hood: _Hood, r: float, n_rays: int):
     return frames, gauss, total, _ray_atoms(points, hood, frames, r, n_rays)
 
 
-def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r: float,
+def _ray_atoms(points: np.ndarray, hood: _Hood, frames: np.ndarray, r,
                n_rays: int) -> np.ndarray:
-    """Index of the neighbour nearest each ray end point, in the tangent plane."""
+    """Index of the neighbour nearest each ray end point, in the tangent plane
+    (rays of length ``r``: one radius, or one per point)."""
     n = len(points)
     th = 2.0 * np.pi * np.arange(n_rays) / n_rays
-    ends = r * np.stack([np.cos(th), np.sin(th)], axis=1)  # (m, 2)
+    unit = np.stack([np.cos(th), np.sin(th)], axis=1)  # (m, 2)
+    radii = np.broadcast_to(np.asarray(r, dtype=np.float64), (n,))
     atoms = np.zeros((n, n_rays), dtype=np.int32)
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
         nb = points[hood.idx[s:e]] - points[s:e, None, :]
         uv = np.matmul(nb, frames[s:e, :, :2])  # (c, k, 2)
         # |uv − end|² up to the constant |end|² = r²
-        d2 = (uv * uv).sum(axis=2)[:, :, None] - 2.0 * np.matmul(uv, ends.T)  # (c, k, m)
+        ends = radii[s:e, None, None] * unit[None]  # (c, m, 2)
+        d2 = ((uv * uv).sum(axis=2)[:, :, None]
+              - 2.0 * np.matmul(uv, ends.transpose(0, 2, 1)))  # (c, k, m)
         d2[~hood.valid(s, e)] = np.inf
         j = d2.argmin(axis=1)
         atoms[s:e] = np.take_along_axis(hood.idx[s:e], j, axis=1)
@@ -312,7 +383,8 @@ def _normalise(v: np.ndarray) -> np.ndarray:
 def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: int = 8,
                         alpha: float = 0.9, measure: str = "residual",
                         accumulation: str = "mean", acc_quantile: float = 0.1,
-                        k_max: int = 32, preset: str | None = None) -> SaliencyResult:
+                        k_max: int = 32, adaptive_radius: bool = False,
+                        preset: str | None = None) -> SaliencyResult:
     """Saliency of every point by local sparse coding and MDL (Leal Narváez 2020, ch. 5).
 
     Per point: the descriptor F = (n, K r², d) — oriented unit normal, Gaussian
@@ -332,7 +404,7 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     normals : (n, 3) float, optional
         Oriented normals, used as given; None: PCA normals oriented by MST.
     radius : float, default=3.0
-        r: neighbourhood radius and ray length.
+        r: neighbourhood radius and ray length (with ``adaptive_radius``: the largest).
     n_rays : int, default=8
         m: rays in the tangent plane, i.e. atoms per dictionary.
     alpha : float, default=0.9
@@ -346,9 +418,13 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
         The quantile of ``accumulation="quantile"`` (0 = minimum).
     k_max : int, default=32
         Most neighbours kept within the radius (the nearest).
+    adaptive_radius : bool, default=False
+        A radius per point by Mitra & Nguyen (2003), from the local curvature,
+        density and the cloud's noise level, between 2h and ``radius`` (the
+        thesis' choice; whole-cloud runs only).
     preset : {"thesis"}, optional
-        "thesis": the MDL product (5.7) and mean accumulation; explicit
-        parameters override it.
+        "thesis": the MDL product (5.7), mean accumulation and the adaptive
+        radius up to 4h; explicit parameters override it.
 
     Returns
     -------
@@ -371,7 +447,7 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     features ("Measure"); the point saliency is the thesis' mean over the
     neighbourhoods, which keeps a feature's whole region salient, not only its
     core ("Accumulation"); r is a fixed multiple
-    of h, not Mitra & Nguyen's adaptive radius ("Radius"); the Lasso is solved by
+    of h unless ``adaptive_radius`` ("Radius"); the Lasso is solved by
     batched coordinate descent, stopped after 32 sweeps ("Lasso solver").  The
     thesis' form: ``measure="mdl"`` (``preset="thesis"``).  Deterministic.
 
@@ -393,13 +469,17 @@ def saliency_sparse_mdl(points, normals=None, *, radius: float = 3.0, n_rays: in
     pts, _ = centered(pts)
 
     tree = build_tree(pts)
-    hood, h = neighbourhoods(pts, radius, k_max, tree)
+    hood, h, dist = neighbourhoods(pts, radius, k_max, tree, distances=True)
     del tree
     r = radius * h
+    if adaptive_radius:
+        hood, r_h = _adaptive_hood(pts, hood, dist, h, radius)
+        r = r_h * h
+    del dist
     if np.median(hood.count) < 6:
         raise PointCloudError(f"{func}: neighbourhoods of radius {radius} h hold "
                               "fewer than 6 points (median); increase radius")
-    log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, r,
+    log.info("%s: n=%d h=%.4g r=%.4g median |N_g|=%d", func, n, h, float(np.median(r)),
              int(np.median(hood.count)))
 
     # surroundings (§5.3.2.2) with the frames, so that these are freed before

@@ -509,6 +509,10 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     if resolved.pop("preset", None) is not None:
         raise InvalidParameterError(f"{spec.command}: preset is not available with tiles; "
                                     "give its parameters explicitly")
+    if resolved.get("adaptive_radius"):
+        raise InvalidParameterError(f"{spec.command}: adaptive_radius is not available "
+                                    "with tiles (a radius per point has no fixed halo); "
+                                    "run it in one piece")
     own = scratch is None
     scratch = tempfile.mkdtemp(prefix="pcprep-tiles-") if own else scratch
     try:

@@ -282,3 +282,44 @@ def test_sign_agreement_across_a_crease():
     # one sign flipped -> the agreement flips too
     n[1] *= -1
     np.testing.assert_allclose(_sign_agreement(p, n, i, j), [-1.0, 1.0], atol=1e-12)
+
+
+def test_mitra_nguyen_radius_known_answers():
+    from pcprep.filters.saliency import MN_C1, MN_C2, MN_EPS, mitra_nguyen_radius
+
+    kappa, rho, sigma = 0.1, 1.0, 0.3
+    expect = ((MN_C1 * sigma / np.sqrt(MN_EPS * rho) + MN_C2 * sigma ** 2) / kappa) ** (1 / 3)
+    got = mitra_nguyen_radius(np.array([kappa]), np.array([rho]), sigma, hi=10.0)
+    assert got[0] == pytest.approx(expect, rel=1e-12)
+    # more curvature: smaller; more noise or sparser sampling: larger; clipped
+    r = lambda k, p, s: mitra_nguyen_radius(np.array([k]), np.array([p]), s, hi=10.0)[0]  # noqa: E731
+    assert r(0.2, 1.0, 0.3) < r(0.1, 1.0, 0.3) < r(0.1, 1.0, 0.5)
+    assert r(0.1, 0.5, 0.3) > r(0.1, 1.0, 0.3)
+    assert r(0.0, 1.0, 0.3) == 10.0 and r(5.0, 1.0, 0.0) == 2.0
+
+
+def test_adaptive_radius_per_point():
+    """The thesis' radius (Mitra & Nguyen): one per point, in [2h, radius], larger
+    on the flat part of a noisy bumpy plane than on its bumps (measured mean
+    2.64h / 2.18h); the thesis preset takes it, tiles refuse it."""
+    from pcprep.filters.saliency import THESIS
+
+    s = make_shape("bumpy_plane", n=8000, seed=0)
+    pts = add_noise(s.points, s.normals, sigma=0.5, h=s.h, seed=1)
+    res = saliency_sparse_mdl(pts, adaptive_radius=True, radius=4.0, k_max=64)
+    r = res.radius / res.h
+    assert r.shape == (len(pts),) and r.min() >= 2.0 - 1e-9 and r.max() <= 4.0 + 1e-9
+    pos = s.extra["salient"]
+    assert r[~pos].mean() > r[pos].mean() + 0.2
+    assert roc_auc(res.saliency, pos) > 0.8
+    assert THESIS["adaptive_radius"] is True
+    fixed = saliency_sparse_mdl(pts, radius=4.0, k_max=64)
+    assert np.ndim(fixed.radius) == 0 and not np.allclose(fixed.saliency, res.saliency)
+
+
+def test_tiles_refuse_the_adaptive_radius():
+    from pcprep.meshlab_bridge.tiles import run_tiled
+
+    pts = make_shape("bumpy_plane", n=2000, seed=0).points
+    with pytest.raises(InvalidParameterError, match="adaptive_radius"):
+        run_tiled("saliency", pts, params={"adaptive_radius": True})
