@@ -77,7 +77,7 @@ def add_bench(sub) -> None:
     """``pcprep bench FAMILY``: one comparison harness, written under reports/."""
     bench = sub.add_parser("bench", help="run one comparison harness; writes reports/")
     bench.add_argument("family", choices=(*benchmarked_families(), "robustness", "scale",
-                                                    "memory"))
+                                          "memory", "departures"))
     bench.add_argument("--quick", action="store_true", help="small generated data, minutes")
     bench.add_argument("--speed", action="store_true", help="the speed benchmark instead")
     bench.add_argument("--out", default=None,
