@@ -473,9 +473,10 @@ if HAVE_NUMBA:
             out[i] = num / max(den, 1e-300)
 
     @_jit()
-    def sphere_rows(x, idx, fit_n, s, e, r2, sd2, cos_n, n_steps, off, ok):
+    def sphere_rows(x, idx, fit_n, xs, s, e, r2, sd2, cos_n, gap, n_steps, off, ok):
         """Rows s:e of ``_denoise_project._sphere_project``: the weighted
-        algebraic sphere fit about p_i and the Newton steps onto it."""
+        algebraic sphere fit about p_i (neighbours on another sheet of the
+        filtered positions ``xs`` left out) and the Newton steps onto it."""
         q, d, d2, theta, inside, ex, bits = _scratch(_up(idx.shape[1]))
         inv_cn = 1.0 / (1.0 - cos_n)
         for i in range(s, e):
@@ -488,6 +489,14 @@ if HAVE_NUMBA:
                 u = (1.0 - abs(dot)) * inv_cn
                 ex[j] = -(u * u)
             _exp_into(ex, mp, bits)
+            for j in range(m):  # another sheet: a height the normals' turn does not explain
+                c = q[j]
+                dot = fit_n[c, 0] * r0 + fit_n[c, 1] * r1 + fit_n[c, 2] * r2_
+                hs = ((xs[c, 0] - xs[i, 0]) * r0 + (xs[c, 1] - xs[i, 1]) * r1
+                      + (xs[c, 2] - xs[i, 2]) * r2_)
+                turn = 0.5 * np.sqrt(d2[j]) * np.sqrt(max(1.0 - dot * dot, 0.0))
+                if abs(hs) > turn + gap:
+                    ex[j] = 0.0
             s0 = qq = qn = 0.0
             mq0 = mq1 = mq2 = mn0 = mn1 = mn2 = 0.0
             for j in range(m):

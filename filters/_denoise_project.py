@@ -16,6 +16,11 @@ from ._denoise_kernels import (COMPILED_CHUNK, WORK, _Ctx, _dot, _geometry, _row
 
 #: Newton steps of the projection onto the fitted algebraic sphere
 PROJ_STEPS = 3
+#: a neighbour is on another sheet (the far face of a thin wall) when its height
+#: above the point's tangent plane, both at their filtered positions, exceeds
+#: what the turn of the normals between them explains (½ d sin∠) by more than
+#: this many h
+SHEET_GAP = 1.0
 
 
 def _pca_normals(ctx: _Ctx, k: int, rows: np.ndarray) -> np.ndarray:
@@ -33,13 +38,17 @@ def _pca_normals(ctx: _Ctx, k: int, rows: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
+def _sphere_project(ctx: _Ctx, fit_n: np.ndarray, sheet_x: np.ndarray):
     """Project every point of ``ctx.x`` onto an algebraic sphere fitted to its
     neighbours (positions ``ctx.x``, normals ``fit_n``).
 
     Weights: θ (σ_d, radius r) times the normal similarity w_ij of (4.4) between
     each neighbour's normal and the point's own, so the fit stays on one side of
-    an edge.  The sphere s(x) = u₀ + uᵀx + u₄‖x‖² (x relative to p_i) fits
+    an edge, and 0 for a neighbour on another sheet: its height above the
+    point's tangent plane, measured between the filtered positions ``sheet_x``,
+    exceeds ½ d sin∠(n_i, n_j) + ``SHEET_GAP`` (a surface turning by ∠ over d
+    rises by about ½ d sin∠; the far face of a wall thinner than the radius
+    does not turn, it is offset).  The sphere s(x) = u₀ + uᵀx + u₄‖x‖² (x relative to p_i) fits
     positions and normals in the least-squares sense of algebraic point set
     surfaces (position and gradient terms weighted equally); p_i moves to s = 0
     by Newton steps along ∇s.  Returns ``(offset (n, 3), ok (n,))``; ``ok`` is
@@ -50,14 +59,15 @@ def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
     ok = np.zeros(n, dtype=bool)
     if _kernels.ENABLED:
         fn = np.ascontiguousarray(fit_n, dtype=np.float64)
+        xs = np.ascontiguousarray(sheet_x, dtype=np.float64)
         _run_chunks(lambda s, e: _denoise_jit.sphere_rows(
-            ctx.x, ctx.idx, fn, s, e, ctx.r2, ctx.sd2, ctx.cos_n, PROJ_STEPS, off, ok), n,
-            COMPILED_CHUNK)
+            ctx.x, ctx.idx, fn, xs, s, e, ctx.r2, ctx.sd2, ctx.cos_n, SHEET_GAP,
+            PROJ_STEPS, off, ok), n, COMPILED_CHUNK)
         return off, ok
     ft = np.ascontiguousarray(fit_n.T, dtype=WORK)
 
     def kernel(s, e):
-        u0, u, u4, good = _sphere_fit(ctx, ft, fit_n[s:e], s, e)
+        u0, u, u4, good = _sphere_fit(ctx, ft, fit_n[s:e], sheet_x, s, e)
         x = _newton(u0, u, u4)
         good &= np.isfinite(x).all(axis=1)
         off[s:e] = np.where(good[:, None], x, 0.0)
@@ -67,7 +77,7 @@ def _sphere_project(ctx: _Ctx, fit_n: np.ndarray):
     return off, ok
 
 
-def _sphere_fit(ctx: _Ctx, ft, ri, s: int, e: int):
+def _sphere_fit(ctx: _Ctx, ft, ri, sheet_x, s: int, e: int):
     """Coefficients (u₀, u, u₄) of the weighted sphere fit about each p_i of rows
     s:e, and whether the weights are non-zero."""
     d, d2, _, theta = _geometry(ctx, s, e)
@@ -81,6 +91,10 @@ def _sphere_fit(ctx: _Ctx, ft, ri, s: int, e: int):
     np.negative(w, out=w)
     np.exp(w, out=w)
     w *= theta
+    # another sheet: a height the turn of the normals does not explain
+    hs = sum((sheet_x[idx, a] - sheet_x[s:e, a, None]) * ri[:, a, None] for a in range(3))
+    turn = 0.5 * np.sqrt(d2) * np.sqrt(np.maximum(1.0 - np.square(dots), 0.0))
+    w *= np.abs(hs) <= turn + SHEET_GAP
     s0 = _rowsum(w)
     good = s0 > 0
     inv = 1.0 / np.where(good, s0, 1.0)

@@ -336,7 +336,7 @@ def _project_input(ctx: _Ctx, x0: np.ndarray, nrm: np.ndarray, vn: np.ndarray,
         rows = np.flatnonzero(frozen)
         fit_n = nrm.copy()
         fit_n[rows] = _pca_normals(cin, min(FIT_PCA_K, ctx.idx.shape[1]), rows)
-    off, ok = _sphere_project(cin, fit_n)
+    off, ok = _sphere_project(cin, fit_n, ctx.x)
     ok &= np.square(off).sum(axis=1) <= cfg.epsilon ** 2
     if cfg.edge_correction:  # corrected edge points keep (4.18)-(4.19)
         ok &= vn >= cfg.edge_threshold
