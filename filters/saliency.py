@@ -546,7 +546,8 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
                   radius: float = 3.0,
                   n_rays: int = 8, alpha: float = 0.9, measure: str = "residual",
                   accumulation: str = "mean", acc_quantile: float = 0.1,
-                  k_max: int = 32, preset: str | None = None) -> dict:
+                  k_max: int = 32, adaptive_radius: bool = False,
+                  preset: str | None = None) -> dict:
     """One tile of a tiled :func:`saliency_sparse_mdl` run (meshlab_bridge/tiles.py).
 
     The filter has two cloud-wide values: F̄_g, the mean descriptor behind the
@@ -561,7 +562,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     divides by the cloud-wide maxima.  Both return ``exact`` (False: a core row
     depends on points outside the box ``[lo, hi]``) and ``sure`` (exact rows).
     ``preset`` is accepted with the resolved parameters, whose values already
-    carry it.
+    carry it; ``adaptive_radius`` must be False (``run_tiled`` refuses it).
     """
     pts = np.asarray(points, dtype=np.float64) - np.asarray(centre)
     k_all = min(max(k_max, SPACING_K + 1), n_total)
