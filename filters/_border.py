@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _kernels
 from .multiscale import chain_labels, sym3_eig
 from .neighbors import CHUNK, build_tree
 
@@ -55,6 +56,12 @@ def strip_extent(x: np.ndarray, mean: np.ndarray, normal: np.ndarray, *, h: floa
     (c,) float
         Distance in h (0 for a point on the outermost row).
     """
+    if _kernels.ENABLED:
+        out = np.empty(len(x))  # noqa: NPY-empty -- every row written by the kernel
+        _kernels.run_chunks(lambda s, e: _kernels.strip_extent_rows(
+            x[s:e], mean[s:e], normal[s:e], h, half_width, gap, out[s:e]), len(x),
+            _kernels.TASK_ROWS)
+        return out
     t = mean - np.einsum("cd,cd->c", mean, normal)[:, None] * normal
     tl = np.sqrt(np.einsum("cd,cd->c", t, t))
     u = -t / np.maximum(tl, 1e-300)[:, None]                    # toward the border

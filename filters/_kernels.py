@@ -5,8 +5,9 @@ Compiled kernels (numba): the per-signal solvers of the sparse core (Lasso by
 LARS and orthogonal matching pursuit, one signal at a time), the per-problem
 Lasso of ``lasso_batched``, the k-NN graph orientation of
 ``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
-per-neighbourhood geometry of the saliency filter and the multi-scale moments
-of the feature and hole detectors (``multiscale.scale_moments``).  Each has a NumPy
+per-neighbourhood geometry of the saliency filter, the multi-scale moments
+of the feature and hole detectors (``multiscale.scale_moments``) and the hole
+detector's strip extent (``_border.strip_extent``).  Each has a NumPy
 reference that runs when ``ENABLED`` is False; the tests compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
@@ -924,3 +925,31 @@ if HAVE_NUMBA:
                                    lam, nrm, c, s)
                     s += 1
         return mean, lam, nrm
+
+    @_jit()
+    def strip_extent_rows(x, mean, normal, h, half, gap, out):
+        """Rows of ``_border.strip_extent``: per point the projections (in h) on
+        the border direction u of the neighbours within ``half`` of the line
+        along u, sorted, up to the first empty stretch > ``gap``."""
+        c_n, k_n = x.shape[0], x.shape[1]
+        a = np.empty(k_n)
+        for c in range(c_n):
+            n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
+            m0, m1, m2 = mean[c, 0], mean[c, 1], mean[c, 2]
+            mn = m0 * n0 + m1 * n1 + m2 * n2
+            t0, t1, t2 = m0 - mn * n0, m1 - mn * n1, m2 - mn * n2
+            tl = max(np.sqrt(t0 * t0 + t1 * t1 + t2 * t2), 1e-300)
+            u0, u1, u2 = -t0 / tl, -t1 / tl, -t2 / tl
+            v0, v1, v2 = n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0
+            for j in range(k_n):
+                y0, y1, y2 = x[c, j, 0], x[c, j, 1], x[c, j, 2]
+                aj = (y0 * u0 + y1 * u1 + y2 * u2) / h
+                bj = abs(y0 * v0 + y1 * v1 + y2 * v2) / h
+                a[j] = aj if bj <= half and aj > 0.0 else 0.0
+            a.sort()
+            first = k_n - 1
+            for j in range(k_n - 1):
+                if a[j + 1] - a[j] > gap:
+                    first = j
+                    break
+            out[c] = a[first]

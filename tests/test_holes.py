@@ -531,3 +531,19 @@ def test_bad_points(rng):
 def test_bad_params(kw, rng):
     with pytest.raises(InvalidParameterError, match="detect_hole_boundaries"):
         detect_hole_boundaries(rng.normal(size=(300, 3)), **kw)
+
+
+def test_strip_extent_compiled_equals_numpy(holed_cube, monkeypatch):
+    from pcprep.filters import _kernels
+    from pcprep.filters.multiscale import scale_moments
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    pts = centered(holed_cube.points)[0]
+    m = next(iter(scale_moments(pts, scale_sizes(16, 80, 10))))
+    args = (m.offsets, m.mean[:, -1], m.normal[:, -1])
+    compiled = strip_extent(*args, h=holed_cube.h)
+    monkeypatch.setattr(_kernels, "ENABLED", False)
+    reference = strip_extent(*args, h=holed_cube.h)
+    np.testing.assert_allclose(compiled, reference, rtol=0, atol=1e-12)
+    assert (reference == 0).any() and (reference > 2.0).any()   # rims and interiors
