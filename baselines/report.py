@@ -31,9 +31,10 @@ from .harness import environment_info, resolve_out_dir, to_jsonable, write_repor
 log = logging.getLogger("pcprep")
 
 #: benchmarks that are not a filter family: run once, no speed part
-EXTRA = ("robustness",)
+EXTRA = ("robustness", "departures")
 TITLES = {
     "robustness": "Robustness: bad and odd input",
+    "departures": "Departures from the thesis and their held-out gain",
     "outliers": "Outlier removal (not in the thesis)",
     "denoise": "Denoising (thesis ch. 4)",
     "simplify": "Simplification, SDBS (thesis ch. 6)",
