@@ -2,7 +2,7 @@
 _border.py
 ----------
 Geometric tests of ``holes.py`` (not in the thesis): where the surface ends
-toward a border (``strip_extent``), the border distance implied by centroid
+toward a border (``strip_extent``, ``strip_extent_at``), the border distance implied by centroid
 shifts (``border_distance``), the empty angle around a point
 (``largest_angle_gap``, ``border_gap``), the chains along a border
 (``track_border``, ``border_radius``) and the points near a set
@@ -56,12 +56,6 @@ def strip_extent(x: np.ndarray, mean: np.ndarray, normal: np.ndarray, *, h: floa
     (c,) float
         Distance in h (0 for a point on the outermost row).
     """
-    if _kernels.ENABLED:
-        out = np.empty(len(x))  # noqa: NPY-empty -- every row written by the kernel
-        _kernels.run_chunks(lambda s, e: _kernels.strip_extent_rows(
-            x[s:e], mean[s:e], normal[s:e], h, half_width, gap, out[s:e]), len(x),
-            _kernels.TASK_ROWS)
-        return out
     t = mean - np.einsum("cd,cd->c", mean, normal)[:, None] * normal
     tl = np.sqrt(np.einsum("cd,cd->c", t, t))
     u = -t / np.maximum(tl, 1e-300)[:, None]                    # toward the border
@@ -72,6 +66,25 @@ def strip_extent(x: np.ndarray, mean: np.ndarray, normal: np.ndarray, *, h: floa
     big = np.diff(a, axis=1) > gap
     first = np.where(big.any(axis=1), np.argmax(big, axis=1), a.shape[1] - 1)
     return a[np.arange(len(a)), first]
+
+
+def strip_extent_at(points: np.ndarray, idx: np.ndarray, rows: np.ndarray,
+                    mean: np.ndarray, normal: np.ndarray, *, h: float,
+                    half_width: float = _STRIP_HALF, gap: float = _STRIP_GAP
+                    ) -> np.ndarray:
+    """``strip_extent`` of the points ``rows`` with the neighbours ``idx``
+    (c, k) of ``points``: the offsets ``points[idx] − points[rows]`` are read
+    by the compiled kernel from the cloud (no (c, k, 3) array) or gathered for
+    the NumPy reference."""
+    if _kernels.ENABLED:
+        out = np.empty(len(rows))  # noqa: NPY-empty -- every row written by the kernel
+        _kernels.run_chunks(lambda s, e: _kernels.strip_extent_rows(
+            points, idx[s:e], rows[s:e], mean[s:e], normal[s:e], h, half_width, gap,
+            out[s:e]), len(rows), _kernels.TASK_ROWS)
+        return out
+    x = points[idx]
+    x -= points[rows, None, :]
+    return strip_extent(x, mean, normal, h=h, half_width=half_width, gap=gap)
 
 
 def _half_disc_table(m: int = 2001) -> tuple[np.ndarray, np.ndarray]:
@@ -109,7 +122,12 @@ def border_distance(shift: np.ndarray, radius: np.ndarray) -> np.ndarray:
     [0.5]
     """
     u, g = _half_disc_table()
-    d = np.interp(shift, g[::-1], u[::-1]) * radius
+    d = np.empty(np.shape(shift))  # noqa: NPY-empty -- every chunk written below
+
+    def rows(s: int, e: int) -> None:   # np.interp releases the GIL: a thread pool
+        d[s:e] = np.interp(shift[s:e], g[::-1], u[::-1]) * radius[s:e]
+
+    _kernels.run_chunks(rows, len(d), CHUNK)
     return np.median(d, axis=1)
 
 

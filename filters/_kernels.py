@@ -7,7 +7,7 @@ Lasso of ``lasso_batched``, the k-NN graph orientation of
 ``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
 per-neighbourhood geometry of the saliency filter, the multi-scale moments
 of the feature and hole detectors (``multiscale.scale_moments``) and the hole
-detector's strip extent (``_border.strip_extent``).  Each has a NumPy
+detector's strip extent (``_border.strip_extent_at``).  Each has a NumPy
 reference that runs when ``ENABLED`` is False; the tests compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
@@ -889,22 +889,26 @@ if HAVE_NUMBA:
             nrm[c, s, 0], nrm[c, s, 1], nrm[c, s, 2] = 0.0, 0.0, 1.0
 
     @_jit()
-    def scale_moments(x, ks, corr):
+    def scale_moments(points, idx, rows, ks, corr):
         """Centroid, covariance eigenvalues and normal of every row's first
-        ks[s] neighbours, for every scale s, from the offsets x (c, k, 3):
-        running sums of x and x xᵀ along the sorted neighbour list
-        (``multiscale.scale_moments``)."""
-        c_n, k_n = x.shape[0], x.shape[1]
+        ks[s] neighbours, for every scale s: running sums of the offsets
+        x = points[idx[c, j]] − points[rows[c]] and of x xᵀ along the sorted
+        neighbour list (``multiscale.scale_moments``).  The offsets are read
+        from the cloud, not from a gathered (c, k, 3) array."""
+        c_n, k_n = idx.shape[0], idx.shape[1]
         n_s = len(ks)
         mean = np.empty((c_n, n_s, 3))
         lam = np.empty((c_n, n_s, 3))
         nrm = np.empty((c_n, n_s, 3))
         for c in range(c_n):
+            r = rows[c]
+            p0, p1, p2 = points[r, 0], points[r, 1], points[r, 2]
             s0 = s1 = s2 = 0.0
             q00 = q01 = q02 = q11 = q12 = q22 = 0.0
             s = 0
             for j in range(k_n):
-                y0, y1, y2 = x[c, j, 0], x[c, j, 1], x[c, j, 2]
+                q = idx[c, j]
+                y0, y1, y2 = points[q, 0] - p0, points[q, 1] - p1, points[q, 2] - p2
                 s0 += y0
                 s1 += y1
                 s2 += y2
@@ -927,13 +931,16 @@ if HAVE_NUMBA:
         return mean, lam, nrm
 
     @_jit()
-    def strip_extent_rows(x, mean, normal, h, half, gap, out):
-        """Rows of ``_border.strip_extent``: per point the projections (in h) on
-        the border direction u of the neighbours within ``half`` of the line
-        along u, sorted, up to the first empty stretch > ``gap``."""
-        c_n, k_n = x.shape[0], x.shape[1]
+    def strip_extent_rows(points, idx, rows, mean, normal, h, half, gap, out):
+        """Rows of ``_border.strip_extent_at``: per point the projections (in h)
+        on the border direction u of the neighbours within ``half`` of the line
+        along u, sorted, up to the first empty stretch > ``gap``; offsets read
+        from the cloud as in ``scale_moments``."""
+        c_n, k_n = idx.shape[0], idx.shape[1]
         a = np.empty(k_n)
         for c in range(c_n):
+            r = rows[c]
+            p0, p1, p2 = points[r, 0], points[r, 1], points[r, 2]
             n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
             m0, m1, m2 = mean[c, 0], mean[c, 1], mean[c, 2]
             mn = m0 * n0 + m1 * n1 + m2 * n2
@@ -942,7 +949,8 @@ if HAVE_NUMBA:
             u0, u1, u2 = -t0 / tl, -t1 / tl, -t2 / tl
             v0, v1, v2 = n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0
             for j in range(k_n):
-                y0, y1, y2 = x[c, j, 0], x[c, j, 1], x[c, j, 2]
+                q = idx[c, j]
+                y0, y1, y2 = points[q, 0] - p0, points[q, 1] - p1, points[q, 2] - p2
                 aj = (y0 * u0 + y1 * u1 + y2 * u2) / h
                 bj = abs(y0 * v0 + y1 * v1 + y2 * v2) / h
                 a[j] = aj if bj <= half and aj > 0.0 else 0.0

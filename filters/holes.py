@@ -28,7 +28,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ._border import (border_distance, border_gap, border_radius, near_any,
-                      strip_extent, track_border)
+                      strip_extent_at, track_border)
 from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, record_step, scale_moments,
@@ -220,7 +220,7 @@ def hole_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
         f = np.stack([np.abs(lam[..., 2] - 2.0 * lam[..., 1]) / l2s,
                       kf[None, :] / (np.pi * r * r), shift], axis=-1)
         out[at] = f.reshape(len(at), -1)
-        extent[at] = strip_extent(m.offsets, mean[:, -1], m.normal[:, -1], h=h)
+        extent[at] = strip_extent_at(points, m.idx, at, mean[:, -1], m.normal[:, -1], h=h)
         variation[at] = lam[:, 0, 0] / np.maximum(lam[:, 0].sum(-1), 1e-300)
     out[:, 1::3] *= h * h                                       # k h² / (π r²)
     return HoleFeatures(features=out, h=float(h), extent=extent, variation=variation,

@@ -155,8 +155,8 @@ class ScaleMoments:
         point itself).
     idx : (c, k_max) int
         Their indices.
-    offsets : (c, k_max, 3) float
-        Neighbour positions relative to the point, ``p_j − p_i``.
+    points : (n, 3) float
+        The cloud the indices refer to (``offsets`` gathers from it).
     mean : (c, s, 3) float
         Centroid of each scale's neighbourhood relative to the point, ``p̄ − p_i``.
     eigenvalues : (c, s, 3) float
@@ -168,10 +168,18 @@ class ScaleMoments:
     rows: np.ndarray
     dist: np.ndarray
     idx: np.ndarray
-    offsets: np.ndarray
+    points: np.ndarray
     mean: np.ndarray
     eigenvalues: np.ndarray
     normal: np.ndarray
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(c, k_max, 3) neighbour positions relative to the point, ``p_j − p_i``
+        (gathered on each access; the compiled kernels read the cloud instead)."""
+        x = self.points[self.idx]
+        x -= self.points[self.rows, None, :]
+        return x
 
 
 def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
@@ -213,14 +221,14 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
     for rows in leaf_chunks(tree, MOMENT_CHUNK):
         c = len(rows)
         dist, idx = knn(points, k_max, tree=tree, query=points[rows])
-        x = points[idx]                                         # (c, k, 3)
-        x -= points[rows, None, :]
         if _kernels.ENABLED and not weighted:
             parts = _kernels.run_chunks(lambda s, e: _kernels.scale_moments(
-                x[s:e], ks, corr), c, _kernels.TASK_ROWS)
+                points, idx[s:e], rows[s:e], ks, corr), c, _kernels.TASK_ROWS)
             mean, lam, nrm = (np.concatenate([q[t] for q in parts]) for t in range(3))
-            yield ScaleMoments(rows, dist, idx, x, mean, lam, nrm)
+            yield ScaleMoments(rows, dist, idx, points, mean, lam, nrm)
             continue
+        x = points[idx]                                         # (c, k, 3)
+        x -= points[rows, None, :]
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
         mean = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2) / kf  # (3, c, S)
         cov = np.empty((c, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set
@@ -232,7 +240,7 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         if weighted:
             cov = _weighted_covariances(x, ks, np.moveaxis(mean, 0, -1), corr)
         lam, nrm = sym3_eig(cov)                                # (c, S, 3)
-        yield ScaleMoments(rows, dist, idx, x, np.moveaxis(mean, 0, -1), lam, nrm)
+        yield ScaleMoments(rows, dist, idx, points, np.moveaxis(mean, 0, -1), lam, nrm)
 
 
 def _weighted_covariances(x: np.ndarray, ks: np.ndarray, mean: np.ndarray,
@@ -256,19 +264,19 @@ def column_scale(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-column centre and scale of the robust standardisation.
 
     ``median`` of each column and ``s = max(1.4826·MAD, 0.3·std)`` (1 where
-    s = 0), column by column so that the temporaries are one column long.
-    These are the global state of the standardisation: computed once over the
-    whole cloud and applied to any rows (``standardise``).
+    s = 0), column by column so that the temporaries are one column long per
+    thread (the columns are independent; NumPy's partition releases the GIL,
+    so they run on the kernels' thread pool, ``_kernels.run_chunks``).  These
+    are the global state of the standardisation: computed once over the whole
+    cloud and applied to any rows (``standardise``).
     """
-    d = F.shape[1]
-    med = np.empty(d)  # noqa: NPY-empty -- every column written below
-    mad = np.empty(d)  # noqa: NPY-empty -- every column written below
-    std = np.empty(d)  # noqa: NPY-empty -- every column written below
-    for j in range(d):
+    def stats(j: int) -> tuple[float, float, float]:
         col = np.ascontiguousarray(F[:, j])
-        med[j] = np.median(col)
-        mad[j] = np.median(np.abs(col - med[j]))
-        std[j] = col.std()
+        m = np.median(col)
+        return m, np.median(np.abs(col - m)), col.std()
+
+    med, mad, std = (np.array(v, dtype=np.float64) for v in zip(
+        *_kernels.run_chunks(lambda s, e: stats(s), F.shape[1], 1)))
     scale = np.maximum(1.4826 * mad, _MAD_FLOOR * std)
     return med, np.where(scale > 0, scale, 1.0)
 

@@ -232,13 +232,16 @@ def weighted_pca(points: np.ndarray, idx: np.ndarray, weights: np.ndarray | None
     Returns
     -------
     LocalPCA
+
+    Rows are independent: they run in chunks on the kernels' thread pool
+    (``_kernels.run_chunks``; NumPy's einsum and LAPACK release the GIL).
     """
     m, k = idx.shape
     lam = np.empty((m, 3))  # noqa: NPY-empty -- every row is written below
     vec = np.empty((m, 3, 3))
     cen = np.empty((m, 3))
-    for s in range(0, m, CHUNK):
-        e = min(m, s + CHUNK)
+
+    def rows(s: int, e: int) -> None:
         nb = points[idx[s:e]]  # (c, k, 3)
         w = np.ones((e - s, k)) if weights is None else weights[s:e]
         wsum = w.sum(axis=1, keepdims=True)
@@ -252,6 +255,8 @@ def weighted_pca(points: np.ndarray, idx: np.ndarray, weights: np.ndarray | None
         lam[s:e] = np.maximum(ev, 0.0)
         vec[s:e] = evec
         cen[s:e] = mean
+
+    _kernels.run_chunks(rows, m, CHUNK)
     return LocalPCA(lam, vec, cen)
 
 

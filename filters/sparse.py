@@ -422,9 +422,12 @@ def _lasso_chunk(X, D, alpha, K, max_steps):
     S = D.shape[0]
     if _kernels.ENABLED:
         G = np.ascontiguousarray(D @ D.T)
-        act, beta, n_hit = _kernels.lars_batch(np.ascontiguousarray(X),
-                                               np.ascontiguousarray(D), G, float(alpha),
-                                               int(K), int(max_steps))
+        X, D = np.ascontiguousarray(X), np.ascontiguousarray(D)
+        parts = _kernels.run_chunks(lambda s, e: _kernels.lars_batch(
+            X[s:e], D, G, float(alpha), int(K), int(max_steps)), len(X),
+            _kernels.TASK_ROWS)
+        act, beta = (np.concatenate([q[t] for q in parts]) for t in range(2))
+        n_hit = sum(q[2] for q in parts)
         if n_hit:
             log.warning("lasso_lars: %d signal(s) hit max_steps", n_hit)
         return act, beta

@@ -11,7 +11,7 @@ from pcprep.baselines.datasets import cut_holes, make_shape, rim_truth
 from pcprep.filters import holes
 from pcprep.filters._border import (border_distance, border_gap, border_radius,
                                     largest_angle_gap, near_any, strip_extent,
-                                    track_border)
+                                    strip_extent_at, track_border)
 from pcprep.filters.holes import HoleResult, hole_features
 from pcprep.filters.metrics import precision_recall_f1
 from pcprep.filters.multiscale import scale_sizes
@@ -541,9 +541,11 @@ def test_strip_extent_compiled_equals_numpy(holed_cube, monkeypatch):
         pytest.skip("numba not installed")
     pts = centered(holed_cube.points)[0]
     m = next(iter(scale_moments(pts, scale_sizes(16, 80, 10))))
-    args = (m.offsets, m.mean[:, -1], m.normal[:, -1])
-    compiled = strip_extent(*args, h=holed_cube.h)
-    monkeypatch.setattr(_kernels, "ENABLED", False)
-    reference = strip_extent(*args, h=holed_cube.h)
+    args = (m.mean[:, -1], m.normal[:, -1])
+    compiled = strip_extent_at(pts, m.idx, m.rows, *args, h=holed_cube.h)
+    reference = strip_extent(m.offsets, *args, h=holed_cube.h)
     np.testing.assert_allclose(compiled, reference, rtol=0, atol=1e-12)
+    monkeypatch.setattr(_kernels, "ENABLED", False)
+    fallback = strip_extent_at(pts, m.idx, m.rows, *args, h=holed_cube.h)
+    assert np.array_equal(fallback, reference)
     assert (reference == 0).any() and (reference > 2.0).any()   # rims and interiors
