@@ -384,6 +384,9 @@ def main(argv: list[str] | None = None) -> int:
     quiet = getattr(args, "quiet", False)
     logging.basicConfig(format="pcprep: %(message)s", stream=sys.stderr,
                         level=logging.WARNING if quiet else logging.INFO)
+    # laspy logs each LAZ backend's failure before it raises; the exception
+    # reaches the user once, as pcprep's own error naming the file
+    logging.getLogger("laspy").setLevel(logging.CRITICAL)
     from pcprep.filters import progress as _progress
 
     bars = sys.stderr.isatty() and not quiet

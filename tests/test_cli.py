@@ -115,3 +115,15 @@ def test_scalar_command_writes_quality_and_colour_ramp(specs, tmp_path):
     hi, lo = np.argmax(src[:, 2]), np.argmin(src[:, 2])
     assert got.quality[hi] > got.quality[lo]
     assert not np.allclose(got.colors[hi], got.colors[lo])
+
+
+def test_a_truncated_laz_is_reported_once_by_name(tmp_path):
+    good, bad = tmp_path / "good.laz", tmp_path / "bad.laz"
+    save_cloud(Cloud(sphere_points(200) * 5.0 + [4.5e5, 5.2e6, 100.0]), str(good))
+    bad.write_bytes(good.read_bytes()[:-13])
+    out = tmp_path / "o.laz"
+    proc = subprocess.run([sys.executable, "-m", "pcprep.meshlab_bridge.cli", "outliers",
+                           str(bad), str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1 and not out.exists()
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "bad.laz" in lines[0] and "truncated" in lines[0], lines
