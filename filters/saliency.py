@@ -202,7 +202,9 @@ def mitra_nguyen_radius(kappa: np.ndarray, rho: np.ndarray, sigma: float, hi: fl
     Parameters
     ----------
     kappa : (n,) float
-        Curvature magnitude in 1/h (0: flat, the radius goes to ``hi``).
+        Curvature magnitude in 1/h (0: flat, the radius goes to ``hi``, also
+        when σ is 0: with neither error any radius fits, and the widest
+        averages most).
     rho : (n,) float
         Sampling density in points per h².
     sigma : float
@@ -214,7 +216,7 @@ def mitra_nguyen_radius(kappa: np.ndarray, rho: np.ndarray, sigma: float, hi: fl
     [4.0, 2.36, 2.0]
     """
     num = MN_C1 * sigma / np.sqrt(MN_EPS * np.maximum(rho, 1e-300)) + MN_C2 * sigma * sigma
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):     # x/0 → inf, 0/0 → nan
         r = np.cbrt(num / np.asarray(kappa, dtype=np.float64))
     return np.clip(np.nan_to_num(r, nan=hi, posinf=hi), lo, hi)
 

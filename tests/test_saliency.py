@@ -1,5 +1,7 @@
 """Tests of filters/saliency.py (thesis ch.5) and its registry declaration."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -296,6 +298,9 @@ def test_mitra_nguyen_radius_known_answers():
     assert r(0.2, 1.0, 0.3) < r(0.1, 1.0, 0.3) < r(0.1, 1.0, 0.5)
     assert r(0.1, 0.5, 0.3) > r(0.1, 1.0, 0.3)
     assert r(0.0, 1.0, 0.3) == 10.0 and r(5.0, 1.0, 0.0) == 2.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")      # flat and clean: the widest, silently
+        assert r(0.0, 1.0, 0.0) == 10.0
 
 
 def test_adaptive_radius_per_point():
