@@ -3,7 +3,7 @@ viewer.py
 ---------
 The interactive part of the report page: each comparison's clouds embedded in
 the HTML (subsampled, positions as base64 Float32, colours as RGB bytes) with
-a small WebGL viewer (``viewer/viewer.js``, inlined) that draws them side by
+a small WebGL viewer (``viewer_assets/viewer.js``, inlined) that draws them side by
 side with one shared camera.  Nothing is fetched, so the page works from the
 file system with no network.
 """
@@ -22,8 +22,8 @@ MAX_POINTS = 8000
 
 
 def asset(name: str) -> str:
-    """The text of a file in ``viewer/`` (installed as package data)."""
-    return resources.files("pcprep.baselines").joinpath("viewer", name).read_text(
+    """The text of a file in ``viewer_assets/`` (installed as package data)."""
+    return resources.files("pcprep.baselines").joinpath("viewer_assets", name).read_text(
         encoding="utf-8")
 
 
