@@ -337,8 +337,8 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
     one piece, each in a fresh process (:func:`harness.measure`: wall time of
     the call, the compiled kernels' cache load included, and peak RSS), against
     one 16-NN pass of the same cloud (cKDTree build + query, all cores; the
-    median of three) in the same run.  Each timed run follows a run on ``WARM_POINTS`` of the points in
-    its own process, which fills numba's on-disk cache: a first run after an
+    median of three) in the same run.  Each timed run follows a run on
+    ``WARM_POINTS`` of the points in its own process, which fills numba's on-disk cache: a first run after an
     install compiles the kernels (about 25 s for denoise), once.  Writes
     speed_scale.md and speed_scale.json."""
     from . import harness
@@ -366,8 +366,8 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
                      "peak_mb": o.peak_mb if o.ok else None,
                      "x_knn16": o.seconds / float(knn) if o.ok else None})
         log.info("bench_scale speed: %s %s", name, o)
-    out = {"n": n, "knn16_s": float(knn), "knn16_passes_s": passes, "rows": rows, "params": PARAMS,
-           "cpus": os.cpu_count(), "target_x_knn16": 4.0}
+    out = {"n": n, "knn16_s": float(knn), "knn16_passes_s": passes, "rows": rows,
+           "params": PARAMS, "cpus": os.cpu_count(), "target_x_knn16": 4.0}
     md = ["# Single-node speed: each filter in one piece", "",
           f"Generated airborne-like terrain of {n:,} points (the `pcprep bench scale` "
           f"cloud), each filter with its defaults ({PARAMS} beyond them) over the whole "

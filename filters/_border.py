@@ -2,8 +2,8 @@
 _border.py
 ----------
 Geometric tests of ``holes.py`` (not in the thesis): where the surface ends
-toward a border (``strip_extent``, ``strip_extent_at``), the border distance implied by centroid
-shifts (``border_distance``), the empty angle around a point
+toward a border (``strip_extent``, ``strip_extent_at``), the border distance
+implied by centroid shifts (``border_distance``), the empty angle around a point
 (``largest_angle_gap``, ``border_gap``), the chains along a border
 (``track_border``, ``border_radius``) and the points near a set
 (``near_any``).  Why each exists, and what it was
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
-from .multiscale import chain_labels, sym3_eig
+from .multiscale import chain_labels, neighbour_offsets, sym3_eig
 from .neighbors import CHUNK, build_tree
 
 #: half-width (h) of the strip toward the border in which the outermost samples are
@@ -82,9 +82,8 @@ def strip_extent_at(points: np.ndarray, idx: np.ndarray, rows: np.ndarray,
             points, idx[s:e], rows[s:e], mean[s:e], normal[s:e], h, half_width, gap,
             out[s:e]), len(rows), _kernels.TASK_ROWS)
         return out
-    x = points[idx]
-    x -= points[rows, None, :]
-    return strip_extent(x, mean, normal, h=h, half_width=half_width, gap=gap)
+    return strip_extent(neighbour_offsets(points, idx, rows), mean, normal, h=h,
+                        half_width=half_width, gap=gap)
 
 
 def _half_disc_table(m: int = 2001) -> tuple[np.ndarray, np.ndarray]:

@@ -74,6 +74,12 @@ def run_chunks(fn, n: int, chunk: int) -> list:
         return list(ex.map(lambda b: fn(*b), bounds))
 
 
+def stack_parts(parts: list, count: int) -> tuple:
+    """The first ``count`` arrays of each chunk's result (``run_chunks``),
+    each concatenated over the chunks in order."""
+    return tuple(np.concatenate([q[t] for q in parts]) for t in range(count))
+
+
 #: signals per work item (scratch arrays are allocated once per block)
 _BLOCK = 2048
 #: ridge added to the diagonal of the active Gram matrices

@@ -489,8 +489,8 @@ def detect_hole_boundaries(points, normals=None, *, min_shift: float = 0.2,
     border being a curve ("Border support"); the smallest hole, as chance gaps
     of a random sampling grow with n ("Smallest hole"); the border row,
     followed along itself near the detections, and the detections within
-    1.2h of it ("Border row and band", "Border tracking").  Every step runs
-    on every sampling ("One rule on every sampling").
+    1.2h of it ("Border row and band", "Border tracking").  No step depends
+    on how the cloud was sampled ("One rule on every sampling").
 
     Examples
     --------

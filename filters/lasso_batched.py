@@ -180,8 +180,7 @@ def _compiled_chunk(x, D, lam, max_iter, tol, kkt_tol):
     parts = _kernels.run_chunks(lambda s, e: _kernels.lasso_stack(
         x[s:e], D[s:e], lam[s:e], int(max_iter), float(tol), float(kkt_tol), False),
         len(x), _kernels.TASK_ROWS)
-    a = np.concatenate([q[0] for q in parts])
-    ok = np.concatenate([q[1] for q in parts])
+    a, ok = _kernels.stack_parts(parts, 2)
     it = max(q[2] for q in parts)
     open_ = np.flatnonzero(~ok)
     if 0 < len(open_) <= max(len(x) // 20, 64):

@@ -177,9 +177,15 @@ class ScaleMoments:
     def offsets(self) -> np.ndarray:
         """(c, k_max, 3) neighbour positions relative to the point, ``p_j − p_i``
         (gathered on each access; the compiled kernels read the cloud instead)."""
-        x = self.points[self.idx]
-        x -= self.points[self.rows, None, :]
-        return x
+        return neighbour_offsets(self.points, self.idx, self.rows)
+
+
+def neighbour_offsets(points: np.ndarray, idx: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``points[idx] − points[rows]``: (c, k, 3) offsets of each row's neighbours,
+    the subtraction the compiled kernels do element by element."""
+    x = points[idx]
+    x -= points[rows, None, :]
+    return x
 
 
 def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
@@ -224,11 +230,10 @@ def scale_moments(points: np.ndarray, ks: np.ndarray, *, tree=None,
         if _kernels.ENABLED and not weighted:
             parts = _kernels.run_chunks(lambda s, e: _kernels.scale_moments(
                 points, idx[s:e], rows[s:e], ks, corr), c, _kernels.TASK_ROWS)
-            mean, lam, nrm = (np.concatenate([q[t] for q in parts]) for t in range(3))
+            mean, lam, nrm = _kernels.stack_parts(parts, 3)
             yield ScaleMoments(rows, dist, idx, points, mean, lam, nrm)
             continue
-        x = points[idx]                                         # (c, k, 3)
-        x -= points[rows, None, :]
+        x = neighbour_offsets(points, idx, rows)                # (c, k, 3)
         xt = np.ascontiguousarray(x.transpose(2, 0, 1))         # (3, c, k)
         mean = np.cumsum(np.add.reduceat(xt, starts, axis=2), axis=2) / kf  # (3, c, S)
         cov = np.empty((c, len(ks), 3, 3))  # noqa: NPY-empty -- all 9 entries set

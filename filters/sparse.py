@@ -199,8 +199,7 @@ def _omp_codes(X, D, L, tol):
         parts = _kernels.run_chunks(lambda s, e: _kernels.omp_batch(
             X[s:e], D, G, int(L), float(tol or 0.0), tol is not None, _EPS), len(X),
             _kernels.TASK_ROWS)
-        return (np.concatenate([q[0] for q in parts]),
-                np.concatenate([q[1] for q in parts]))
+        return _kernels.stack_parts(parts, 2)
     return _omp_chunk(X, D, L, tol)
 
 
@@ -426,7 +425,7 @@ def _lasso_chunk(X, D, alpha, K, max_steps):
         parts = _kernels.run_chunks(lambda s, e: _kernels.lars_batch(
             X[s:e], D, G, float(alpha), int(K), int(max_steps)), len(X),
             _kernels.TASK_ROWS)
-        act, beta = (np.concatenate([q[t] for q in parts]) for t in range(2))
+        act, beta = _kernels.stack_parts(parts, 2)
         n_hit = sum(q[2] for q in parts)
         if n_hit:
             log.warning("lasso_lars: %d signal(s) hit max_steps", n_hit)
