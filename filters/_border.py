@@ -121,13 +121,14 @@ def border_distance(shift: np.ndarray, radius: np.ndarray) -> np.ndarray:
     [0.5]
     """
     u, g = _half_disc_table()
-    d = np.empty(np.shape(shift))  # noqa: NPY-empty -- every chunk written below
+    out = np.empty(len(shift))  # noqa: NPY-empty -- every chunk written below
 
-    def rows(s: int, e: int) -> None:   # np.interp releases the GIL: a thread pool
-        d[s:e] = np.interp(shift[s:e], g[::-1], u[::-1]) * radius[s:e]
+    def rows(s: int, e: int) -> None:   # interp and median release the GIL: threads
+        out[s:e] = np.median(np.interp(shift[s:e], g[::-1], u[::-1]) * radius[s:e],
+                             axis=1)
 
-    _kernels.run_chunks(rows, len(d), CHUNK)
-    return np.median(d, axis=1)
+    _kernels.run_chunks(rows, len(out), CHUNK)
+    return out
 
 
 def largest_angle_gap(offsets: np.ndarray, normals: np.ndarray) -> np.ndarray:

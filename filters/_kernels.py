@@ -700,6 +700,23 @@ if HAVE_NUMBA:
         return rep, rel
 
     @_jit()
+    def merge_sorted(a, b, out):
+        """out ← the sorted union of the sorted arrays a and b (a's element
+        first on equal values)."""
+        i = j = t = 0
+        while i < a.shape[0] and j < b.shape[0]:
+            if a[i] <= b[j]:
+                out[t] = a[i]
+                i += 1
+            else:
+                out[t] = b[j]
+                j += 1
+            t += 1
+        out[t:t + a.shape[0] - i] = a[i:]
+        t += a.shape[0] - i
+        out[t:] = b[j:]
+
+    @_jit()
     def hood_mean(idx, count, values):
         """Mean of ``values`` (n, q) over the first count[i] entries of idx[i]."""
         n = idx.shape[0]

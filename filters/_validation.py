@@ -82,14 +82,19 @@ def _duplicate_pairs(points: np.ndarray):
     """(count, row a, row b) of the exact duplicate rows of ``points``, or None.
 
     One sort of a 64-bit hash of each row (not a 3-key lexsort: 5-10× faster
-    at 10^6 points); only rows whose hash is shared are compared exactly, so
-    a hash collision cannot report a false duplicate.  −0.0 counts as 0.0.
+    at 10^6 points; a plain sort of the hashes first, which decides the usual
+    case of no shared hash faster than the argsort the rest needs); only rows
+    whose hash is shared are compared exactly, so a hash collision cannot
+    report a false duplicate.  −0.0 counts as 0.0.
     """
     bits = np.ascontiguousarray(points + 0.0).view(np.uint64)
     with np.errstate(over="ignore"):
         key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
                ^ bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
                ^ bits[:, 2] * np.uint64(0x165667B19E3779F9))
+    ks = np.sort(key)
+    if not (ks[1:] == ks[:-1]).any():    # the usual case: no shared hash
+        return None
     order = np.argsort(key)
     ks = key[order]
     shared = np.zeros(len(ks), dtype=bool)

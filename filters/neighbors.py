@@ -137,6 +137,23 @@ def isolated(row_mean: np.ndarray) -> np.ndarray:
     return row_mean > ISOLATED_FACTOR * float(np.median(row_mean))
 
 
+def spacing_rows(points: np.ndarray, k: int = SPACING_K, *,
+                 tree: cKDTree | None = None) -> np.ndarray:
+    """Each point's mean distance to its ``k`` nearest neighbours (self
+    excluded): the rows of :func:`spacing_from_rows`.  The query runs in the
+    tree's leaf order, slice by slice, and keeps only the row means (no (n, k)
+    distance or index array): the same values as ``knn(points, k)`` averaged
+    over its rows."""
+    tree = build_tree(points) if tree is None else tree
+    out = np.empty(len(points))  # noqa: NPY-empty -- every row written below
+    with progress.step(f"{k}-NN spacing", len(points)) as advance:
+        for rows in leaf_chunks(tree, 4 * CHUNK):
+            d, _ = tree.query(points[rows], k=k + 1, workers=-1)
+            out[rows] = d[:, 1:].mean(axis=1)
+            advance(len(rows))
+    return out
+
+
 def average_spacing(points: np.ndarray, k: int = SPACING_K, *, tree: cKDTree | None = None) -> float:
     """Spacing h, the unit of every length: the mean distance of each point to
     its ``k`` nearest neighbours (self excluded, thesis §4.5.1), averaged over
@@ -149,8 +166,7 @@ def average_spacing(points: np.ndarray, k: int = SPACING_K, *, tree: cKDTree | N
         raise PointCloudError(
             f"average_spacing: needs at least {k + 1} points, got {len(points)}"
         )
-    d, _ = knn(points, k, tree=tree, include_self=False)
-    h = spacing_from_rows(d.mean(axis=1))
+    h = spacing_from_rows(spacing_rows(points, k, tree=tree))
     if not np.isfinite(h) or h <= 0.0:
         raise PointCloudError("average_spacing: every point coincides with its neighbours (h = 0)")
     return h
@@ -416,6 +432,38 @@ def _orient_edges(points, normals, nb, mirror):
     return ei, ej, cost, sign
 
 
+def cost_order(cost: np.ndarray) -> np.ndarray:
+    """Indices of the float32 ``cost`` in ascending order, equal costs by
+    index: the order of a stable argsort, on every machine.
+
+    Kruskal's forest (:func:`_orient_compiled`) takes the edges in this order,
+    and where costs tie (exact agreements on planes) the order picks the tree,
+    so it must not depend on the sort's implementation (NumPy's quicksort
+    breaks ties differently with and without AVX-512).  Each cost's bits, made
+    monotone as an unsigned integer, go to the high half of a 64-bit key and
+    the index to the low half; the keys are distinct, so any sort gives this
+    order: the two halves are sorted on the kernels' threads and merged.
+    """
+    cost = np.asarray(cost, dtype=np.float32) + np.float32(0.0)   # −0 → +0
+    n = len(cost)
+    if n >= 2**32:
+        return np.argsort(cost, kind="stable")
+    bits = cost.view(np.uint32)
+    flip = np.where(bits >> np.uint32(31), np.uint32(0xFFFFFFFF), np.uint32(0x80000000))
+    key = (bits ^ flip).astype(np.uint64) << np.uint64(32)
+    key |= np.arange(n, dtype=np.uint64)
+    del bits, flip
+    if _kernels.ENABLED and n > CHUNK and _kernels.threads() > 1:
+        half = n // 2
+        a, b = _kernels.run_chunks(lambda s, e: np.sort(key[s:e]), n, half + 1)
+        key = np.empty(n, dtype=np.uint64)  # noqa: NPY-empty -- the merge fills it
+        _kernels.merge_sorted(a, b, key)
+    else:
+        key.sort()
+    key &= np.uint64(0xFFFFFFFF)
+    return key.astype(np.int64)
+
+
 def _orient_compiled(points, normals, nb, mirror):
     """The same orientation as :func:`orient_normals_mst`, compiled: Kruskal's
     forest over the edges sorted by cost, with a union-find that carries each
@@ -429,7 +477,7 @@ def _orient_compiled(points, normals, nb, mirror):
     ei, ej, cost, sign = _orient_edges(
         pts, np.ascontiguousarray(normals, dtype=np.float64),
         np.ascontiguousarray(nb, dtype=np.int64), bool(mirror))
-    order = np.argsort(cost, kind="quicksort")
+    order = cost_order(cost)
     del cost
     rep, rel = _kernels.kruskal_signs(order, ei, ej, sign, n)
     del order, ei, ej, sign

@@ -166,6 +166,38 @@ def test_knn_in_leaf_order_equals_one_query_in_input_order(monkeypatch):
     np.testing.assert_array_equal(i, want_i[:, 1:])
 
 
+def test_spacing_rows_in_leaf_slices_equal_the_plain_query(monkeypatch):
+    """The spacing's row means, queried slice by slice in leaf order, are the
+    plain 7-NN query's row means to the bit (so h is)."""
+    from pcprep.filters import neighbors
+
+    p = sphere_points(3000, seed=12)[np.random.default_rng(3).permutation(3000)]
+    d, _ = neighbors.build_tree(p).query(p, k=7)
+    want = np.ascontiguousarray(d[:, 1:]).mean(axis=1)
+    monkeypatch.setattr(neighbors, "CHUNK", 100)  # 400-row slices, 8 of them
+    np.testing.assert_array_equal(neighbors.spacing_rows(p), want)
+    assert average_spacing(p) == neighbors.spacing_from_rows(want)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_cost_order_is_the_stable_argsort(monkeypatch, compiled):
+    """Kruskal's edge order: ascending cost, ties by index (what a stable
+    argsort gives), with −0.0 equal to 0.0 and negative and subnormal costs in
+    place, through the threaded sort-and-merge and the plain sort alike."""
+    from pcprep.filters import _kernels, neighbors
+
+    monkeypatch.setattr(_kernels, "ENABLED", compiled and _kernels.HAVE_NUMBA)
+    monkeypatch.setattr(_kernels, "threads", lambda: 2)
+    rng = np.random.default_rng(5)
+    n = 3 * neighbors.CHUNK + 7
+    ties = np.array([-1.5, -0.0, 0.0, 1e-6, 0.5, 2.0, -3e-40, 3e-40], dtype=np.float32)
+    cost = np.where(rng.random(n) < 0.6, rng.choice(ties, n),
+                    rng.standard_normal(n).astype(np.float32))
+    order = neighbors.cost_order(cost)
+    np.testing.assert_array_equal(order, np.argsort(cost, kind="stable"))
+    assert order.dtype == np.int64
+
+
 def test_tile_miss_says_how_far_the_worst_ball_pokes_out():
     from pcprep.filters.neighbors import tile_miss
 
