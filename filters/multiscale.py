@@ -276,9 +276,12 @@ def column_scale(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cloud and applied to any rows (``standardise``).
     """
     def stats(j: int) -> tuple[float, float, float]:
-        col = np.ascontiguousarray(F[:, j])
-        m = np.median(col)
-        return m, np.median(np.abs(col - m)), col.std()
+        col = np.array(F[:, j], dtype=np.float64)      # a private copy, reused:
+        std = col.std()                                 # std first (row order),
+        m = np.median(col, overwrite_input=True)        # then medians in place
+        np.subtract(col, m, out=col)
+        np.abs(col, out=col)
+        return m, np.median(col, overwrite_input=True), std
 
     med, mad, std = (np.array(v, dtype=np.float64) for v in zip(
         *_kernels.run_chunks(lambda s, e: stats(s), F.shape[1], 1)))
@@ -403,10 +406,12 @@ def fit_score_model(F: np.ndarray, cfg: ScoreConfig) -> ScoreModel:
     d = F.shape[1]
     L = max(1, min(d, cfg.n_atoms) // 10)
     keys = np.empty(len(F), dtype=np.uint64)  # noqa: NPY-empty -- every chunk written below
-    for s0 in range(0, len(F), CHUNK):
-        keys[s0:s0 + CHUNK] = sparse.content_keys(
-            standardise(F[s0:s0 + CHUNK], med, scale), cfg.seed)
-    train = np.argsort(keys, kind="stable")[: cfg.max_train]
+
+    def hash_rows(s0: int, e: int) -> None:     # NumPy releases the GIL: threads
+        keys[s0:e] = sparse.content_keys(standardise(F[s0:e], med, scale), cfg.seed)
+
+    _kernels.run_chunks(hash_rows, len(F), CHUNK)
+    train = sparse.first_in_order(keys, cfg.max_train)
     del keys
     Zt = standardise(F[train], med, scale)
     D = sparse.ksvd(Zt, cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
@@ -497,6 +502,10 @@ def prepare_cloud(points, normals, *, k_min: int, k_max: int, func: str):
     return pts, build_tree(pts)
 
 
+#: leading values of ``otsu_threshold`` tested for more than ``bins`` distinct ones
+_DISTINCT_PROBE = 8192
+
+
 def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     """Otsu's threshold (maximal between-class variance) of ``values``.
 
@@ -510,11 +519,14 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     lo, hi = float(v.min()), float(v.max())
     if hi <= lo:
         return hi
-    uniq = np.unique(v)
-    if len(uniq) <= bins:
+    # more than ``bins`` distinct values among the first rows settles it without
+    # sorting every value (a continuous score, the usual case)
+    few = len(np.unique(v[:_DISTINCT_PROBE])) <= bins
+    if few:
         centers, counts = np.unique(v, return_counts=True)
+    if few and len(centers) <= bins:
         counts = counts.astype(np.float64)
-        cuts = 0.5 * (uniq[:-1] + uniq[1:])
+        cuts = 0.5 * (centers[:-1] + centers[1:])
     else:
         counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
         counts = counts.astype(np.float64)

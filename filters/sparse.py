@@ -645,6 +645,21 @@ def content_order(X: np.ndarray, seed: int | None = 0, decimals: int = 6) -> np.
     return np.argsort(content_keys(X, seed, decimals), kind="stable")
 
 
+def first_in_order(keys: np.ndarray, m: int) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")[:m]`` without sorting every key: the
+    m-th smallest key found by selection (O(n)), then only the keys up to it
+    sorted (stably, from ascending row numbers, so ties keep row order).  The
+    driver of a tiled run picks the training rows of a cloud of any size so."""
+    keys = np.asarray(keys)
+    if m >= len(keys):
+        return np.argsort(keys, kind="stable")
+    if m <= 0:
+        return np.empty(0, dtype=np.int64)
+    kth = np.partition(keys, m - 1)[m - 1]
+    cand = np.flatnonzero(keys <= kth)
+    return cand[np.argsort(keys[cand], kind="stable")[:m]]
+
+
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
          max_iter: int = 10, max_train: int = 20_000, seed: int | None = None,
          code_all: bool = True, order=None) -> KSVDResult:

@@ -228,9 +228,14 @@ def test_single_node_speed_times_every_filter_against_one_knn_pass(tmp_path, mon
     out = bench_scale.run_speed(quick=True, out_dir=str(tmp_path))
     assert out["n"] == 4000 and out["knn16_s"] > 0
     assert [r["filter"] for r in out["rows"]] == ["outliers", "simplify"]
+    # one pass before each filter and one at the end; the yardstick is their median
+    assert len(out["knn16_passes_s"]) == 3
+    assert out["knn16_s"] == pytest.approx(float(np.median(out["knn16_passes_s"])))
     for r in out["rows"]:
         assert r["ok"], r["error"]
-        assert r["seconds"] > 0 and r["peak_mb"] > 0
+        assert len(r["runs_s"]) == bench_scale.SPEED_REPEATS
+        assert r["seconds"] == pytest.approx(float(np.median(r["runs_s"])))
+        assert r["peak_mb"] > 0
         assert r["x_knn16"] == pytest.approx(r["seconds"] / out["knn16_s"])
     md = (tmp_path / "speed_scale.md").read_text()
     assert "| outliers |" in md and "| simplify |" in md

@@ -171,3 +171,36 @@ def test_compiled_and_numpy_scale_moments_agree(monkeypatch):
         gap = (a.eigenvalues[..., 1] - a.eigenvalues[..., 0]) > 1e-6 * cube.h ** 2
         cos = np.abs(np.einsum("csd,csd->cs", a.normal, b.normal))
         assert gap.mean() > 0.9 and (cos[gap] > 1 - 1e-9).all()
+
+
+def test_otsu_does_not_depend_on_which_values_come_first(rng):
+    """The probe of the leading values only shortcuts the test "at most
+    ``bins`` distinct values": a score whose leading 8192 values take three
+    values and whose tail is continuous is thresholded as a continuous score,
+    whatever the row order; one with three values throughout gets a cut between
+    two of them."""
+    few = rng.choice([0.0, 1.0, 4.0], 9000, p=[0.6, 0.3, 0.1])
+    tail = rng.gamma(2.0, 1.0, 3000)
+    v = np.r_[few, tail]
+    t = otsu_threshold(v)
+    assert t == otsu_threshold(np.r_[tail, few]) == otsu_threshold(v[::-1])
+    assert t not in (0.5, 2.5)          # not a cut between two of the three values
+    assert otsu_threshold(few) in (0.5, 2.5)
+
+
+def test_column_scale_is_the_plain_formula_and_leaves_the_input(rng):
+    """Median, max(1.4826·MAD, 0.3·std) per column (1 where that is 0), to the
+    bit; the in-place medians work on copies, so ``F`` is unchanged, whether
+    its columns are strided (rows of features) or contiguous (a transposed
+    column store, as the tiled driver keeps them)."""
+    F = rng.gamma(2.0, 1.0, (5001, 4))
+    F[:, 2] = 3.0                                   # constant: scale 1
+    for X in (F, np.ascontiguousarray(F.T).T):
+        before = X.copy()
+        med, scale = multiscale.column_scale(X)
+        np.testing.assert_array_equal(X, before)
+        want_m = np.median(F, axis=0)
+        mad = np.median(np.abs(F - want_m), axis=0)
+        want_s = np.maximum(1.4826 * mad, 0.3 * F.std(axis=0))
+        np.testing.assert_array_equal(med, want_m)
+        np.testing.assert_array_equal(scale, np.where(want_s > 0, want_s, 1.0))

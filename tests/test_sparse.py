@@ -209,3 +209,14 @@ def test_content_keys_of_pieces_are_the_keys_of_the_whole():
     assert np.array_equal(keys[65_000:], sparse.content_keys(X[65_000:], seed=3))
     assert np.array_equal(sparse.content_order(X, 3), np.argsort(keys, kind="stable"))
     assert len(np.unique(keys)) == len(X)
+
+
+def test_first_in_order_is_the_head_of_the_stable_argsort(rng):
+    """The training rows picked by selection are the first m of a stable sort
+    of the keys, ties (many here) in row order, for m below, at and above n."""
+    from pcprep.filters.sparse import first_in_order
+
+    keys = rng.integers(0, 300, 5000).astype(np.uint64)
+    for m in (1, 7, 4000, 5000, 6000):
+        np.testing.assert_array_equal(first_in_order(keys, m),
+                                      np.argsort(keys, kind="stable")[:m])
