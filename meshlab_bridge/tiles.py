@@ -314,6 +314,7 @@ class _Runner:
         self.scratch, self.on_result = scratch, on_result
         self.halo = {}  # cell -> the halo that proved wide enough
         self.times = {}  # pass label -> wall seconds
+        self.cpu = {}  # pass label -> the driver's CPU seconds (all its threads)
         self.passes = 0
         self.cell = None  # the cell whose result ``collect`` is given
 
@@ -360,7 +361,7 @@ class _Runner:
 
         from dask.distributed import as_completed
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         cells = [int(c) for c in self.index.cells]
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
@@ -405,6 +406,7 @@ class _Runner:
                         self.on_result(label, c)
                 submit()
         self.times[label] = self.times.get(label, 0.0) + time.perf_counter() - t0
+        self.cpu[label] = self.cpu.get(label, 0.0) + time.process_time() - c0
         for s0 in range(0, self.src.n, CHUNK):
             part = np.asarray(seen[s0:s0 + CHUNK])
             if not (part == 1).all():
@@ -535,6 +537,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             out = family(runner, source, normals, h, resolved)
             total = time.perf_counter() - t1 + runner.times["spacing"]
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
+                             cpu_passes=dict(runner.cpu),
                              time_driver=total - sum(runner.times.values()),
                              tiles=len(index.cells), grid_side=index.side,
                              grid_shape=index.shape, target=target,
@@ -851,12 +854,13 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
     """``collect(s0, fn(rows(s0, e), shared, arg))`` for row chunks ``[s0, e)``
     of a cloud of ``n`` rows, run on the workers with ``shared`` (a model or a
     dictionary) broadcast once; the driver keeps ``IN_FLIGHT`` chunks per
-    worker in flight.  The pass's wall time goes to ``runner.times[label]``."""
+    worker in flight.  The pass's wall time goes to ``runner.times[label]``,
+    the driver's CPU time in it to ``runner.cpu[label]``."""
     import time
 
     from dask.distributed import as_completed
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     client = runner.client
     [model] = client.scatter([shared], broadcast=True)
     step = CHUNK // 4
@@ -877,6 +881,7 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
             advance()
             submit()
     runner.times[label] = time.perf_counter() - t0
+    runner.cpu[label] = time.process_time() - c0
 
 
 def _sharp(runner, src, normals, h, prm) -> TiledResult:

@@ -240,3 +240,16 @@ def test_single_node_speed_times_every_filter_against_one_knn_pass(tmp_path, mon
     md = (tmp_path / "speed_scale.md").read_text()
     assert "| outliers |" in md and "| simplify |" in md
     assert json.loads((tmp_path / "speed_scale.json").read_text())["n"] == 4000
+
+
+def test_scale_projection_is_amdahl_and_the_driver_bound_adds_its_pass_cpu():
+    """T(P) = S·(10⁹/n) + (W − S)·(10⁹/n)/P; the driver-bound variant counts
+    the driver's CPU seconds in the passes as serial too."""
+    from pcprep.baselines.bench_scale import _project
+
+    row = {"n": 1_000_000, "wall_s": 100.0, "serial_s": 10.0, "pass_cpu_s": 5.0}
+    assert _project(row, 1) == pytest.approx(100.0 * 1000)
+    assert _project(row, 10) == pytest.approx((10.0 + 90.0 / 10) * 1000)
+    bound = _project(row, 10, driver_bound=True)
+    assert bound == pytest.approx((15.0 + 85.0 / 10) * 1000)
+    assert _project(row, 10**9) < _project(row, 10**9, driver_bound=True)

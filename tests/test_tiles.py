@@ -235,6 +235,9 @@ def test_features_identical_on_200k_points(client):
     assert np.array_equal(res.fields["mask"], ref.mask)
     assert np.array_equal(res.fields["score"], ref.score)
     assert res.h == ref.h
+    # the driver's CPU time is kept for every pass whose wall time is
+    cpu = res.stats["cpu_passes"]
+    assert set(cpu) == set(res.stats["time_passes"]) and all(v > 0 for v in cpu.values())
 
 
 @pytest.mark.parametrize("cloud", ["random", "mesh-like"])
