@@ -735,8 +735,8 @@ def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | No
         train_idx = np.arange(m) if m <= max_train else np.sort(
             rng.choice(m, size=max_train, replace=False))
     else:
-        canon = content_order(X, seed) if order is None else np.asarray(order, np.int64)
-        train_idx = canon[:max_train]
+        train_idx = (first_in_order(content_keys(X, seed), max_train) if order is None
+                     else np.asarray(order, np.int64)[:max_train])
     Xt = X[train_idx]
     mt = len(Xt)
     # initial dictionary: distinct random training signals, normalised

@@ -131,8 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_info(path: str) -> None:
-    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated, knn,
-                                          spacing_from_rows)
+    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated,
+                                          spacing_from_rows, spacing_rows)
 
     from .cloud import describe
 
@@ -150,8 +150,7 @@ def _cmd_info(path: str) -> None:
     if cloud.faces is not None:
         lines.append(f"faces: {len(cloud.faces)}")
     if len(pts) > SPACING_K:
-        dist, _ = knn(pts, SPACING_K, include_self=False)
-        rows = dist.mean(axis=1)
+        rows = spacing_rows(pts)
         iso = int(np.count_nonzero(isolated(rows)))
         lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "
                      f"left out): {spacing_from_rows(rows):.6g}")
