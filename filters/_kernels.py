@@ -7,7 +7,8 @@ Lasso of ``lasso_batched``, the k-NN graph orientation of
 ``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
 per-neighbourhood geometry of the saliency filter, the multi-scale moments
 of the feature and hole detectors (``multiscale.scale_moments``) and the hole
-detector's strip extent (``_border.strip_extent_at``).  Each has a NumPy
+detector's strip extent (``_border.strip_extent_at``) and the tiler's grid
+cells (``tiles._cell_ids``).  Each has a NumPy
 reference that runs when ``ENABLED`` is False; the tests compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
@@ -698,6 +699,23 @@ if HAVE_NUMBA:
             rep[i] = r
             rel[i] = p
         return rep, rel
+
+    @_jit()
+    def cell_ids(xyz, lo, sides, shape, out):
+        """out[i] ← the C-order number of the grid cell of row i:
+        ⌊(x − lo) / side⌋ per axis, clipped to the grid, in one pass (the
+        NumPy reference, ``tiles._cell_ids``, makes five temporaries of the
+        rows and took 3× as long in the tile grid's bisection)."""
+        for i in range(xyz.shape[0]):
+            c = 0
+            for a in range(3):
+                v = np.int64(np.floor((xyz[i, a] - lo[a]) / sides[a]))
+                if v < 0:
+                    v = 0
+                elif v > shape[a] - 1:
+                    v = shape[a] - 1
+                c = c * shape[a] + v
+            out[i] = c
 
     @_jit()
     def merge_sorted(a, b, out):

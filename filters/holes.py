@@ -531,7 +531,9 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
     the point-wise part of the detector for the core rows of ``points`` (every
     point of the cloud in the box ``[lo, hi]``), with the cloud-wide h.
 
-    Returns the core rows' oriented features (7.5)-(7.7), the inputs of the
+    Returns the core rows' oriented features (7.5)-(7.7) column by column (a
+    (d, m) array, transposed here on the workers for the tiler's column
+    store), the inputs of the
     point-wise tests (shift, border distance, flatness, extent) and the empty
     angle of the border-row test; or
     ``{"exact": False}`` when a core row's neighbourhood may reach beyond
@@ -553,6 +555,6 @@ def hole_tile(points, lo, hi, core, *, centre, h: float, n_total: int,
         return miss
     F = feats.features[core]
     bdist = _rim_distance(F, ks) if rules.rim_distance else None
-    return {"exact": True, "features": _orient(F), "extent": feats.extent[core],
+    return {"exact": True, "features": np.ascontiguousarray(_orient(F).T), "extent": feats.extent[core],
             "variation": feats.variation[core], "shift_mean": feats.shift_mean[core],
             "border_distance": bdist, "gap": border_gap(x, feats.near[core])}

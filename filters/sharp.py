@@ -447,7 +447,9 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
     ``points`` are every point of the cloud in the box ``[lo, hi]`` (its core
     rows ``core``); ``params`` the validated keywords of
     ``detect_sharp_features``.  Stage ``"features"`` returns the core rows'
-    features (7.1)-(7.4) with the given cloud-wide h, their PCA normals and ridge
+    features (7.1)-(7.4) with the given cloud-wide h, column by column (a
+    (d, m) array: the tiler stores features by column, and the transpose is
+    done here, on the workers, not on the driver), their PCA normals and ridge
     factor; stage ``"gates"`` runs the
     crease-angle gate and the localisation on the core rows of the
     thresholded ``mask`` (``normals``, ``ridge`` given for every row; σ̂ is
@@ -469,7 +471,8 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
         miss = tile_miss(x[core], feats.reach[core], *box)
         if miss is not None:
             return miss
-        return {"exact": True, "features": feats.features[core], "normals": feats.normals[core],
+        return {"exact": True, "features": np.ascontiguousarray(feats.features[core].T),
+                "normals": feats.normals[core],
                 "ridge_pd": feats.ridge_pd[core]}
     sel = core & mask
     k = local_k(sigma, cfg, rules)

@@ -191,3 +191,27 @@ def test_written_files_get_normal_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (tmp_path / "p.ply").stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_quality_ramp_equals_meshlabs_bit_for_bit():
+    # the NumPy ramp against MeshLab's own filter on the same values: the
+    # quarter ends and their float neighbours, ±0, values outside [0, 1], and
+    # a dense random sample (8-bit truncation of single-precision blends)
+    from pcprep.meshlab_bridge.convert import quality_ramp
+
+    g = np.random.default_rng(4)
+    ends = np.array([0.0, 0.25, 0.5, 0.75, 1.0])
+    q = np.concatenate([ends, np.nextafter(ends, -1), np.nextafter(ends, 2),
+                        np.nextafter(np.float32(ends), np.float32(2)).astype(float),
+                        [-0.0, -1e-300, -3.0, 7.5, 1e30, -1e30],
+                        g.random(200_000), g.uniform(-0.2, 1.2, 20_000),
+                        np.linspace(0.0, 1.0, 4097)])
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.c_[np.arange(len(q)), np.zeros((len(q), 2))],
+                               v_scalar_array=q))
+    ms.compute_color_from_scalar_per_vertex(minval=0.0, maxval=1.0)
+    ref = ms.current_mesh().vertex_color_matrix()
+    got = quality_ramp(q)
+    assert got.shape == ref.shape == (len(q), 4)
+    assert np.array_equal(got, ref)
+    assert len(np.unique(got, axis=0)) > 1000  # the blends, not a few plain colours

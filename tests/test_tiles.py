@@ -76,6 +76,40 @@ def test_saliency_equals_one_piece(client, monkeypatch):
                   ).max() <= 1e-9
 
 
+class _NewestFirst:
+    """``distributed.as_completed`` that hands out the newest future first:
+    tile results then arrive in an order unlike the cells' (and unlike
+    what two idle workers give), as on a busy cluster."""
+
+    def __init__(self):
+        self._futures = []
+
+    def add(self, fut):
+        self._futures.append(fut)
+
+    def count(self):
+        return len(self._futures)
+
+    def __iter__(self):
+        while self._futures:
+            distributed.wait(self._futures)
+            yield self._futures.pop()
+
+
+@pytest.mark.parametrize("name", ["saliency", "denoise"])
+def test_results_do_not_depend_on_the_order_tiles_finish(client, monkeypatch, name):
+    # the cloud-wide sums (saliency's mean block, denoise's decision traces)
+    # and the tiles' sign votes are taken in cell order, so that the same
+    # cloud gives the same bits whichever tile comes back first
+    params = DENOISE if name == "denoise" else None
+    first = tiles.run_tiled(name, CLOUD, params=params, client=client, tiles=2000)
+    monkeypatch.setattr(distributed, "as_completed", _NewestFirst)
+    again = tiles.run_tiled(name, CLOUD, params=params, client=client, tiles=2000)
+    assert first.stats["tiles"] >= 8
+    for key, v in first.fields.items():
+        assert np.array_equal(v, again.fields[key]), key
+
+
 @pytest.mark.parametrize("method", ["statistical", "radius"])
 def test_outliers_identical(client, method):
     ref = remove_outliers(CLOUD, method=method)
@@ -335,3 +369,22 @@ def test_grid_cells_fill_the_box_without_slivers(tmp_path):
     assert np.array_equal(np.sort(np.asarray(index.order)), np.arange(len(pts)))
     lo, hi = index.cell_box(int(index.cells[-1]))
     assert np.allclose(hi[:2], pts.max(axis=0)[:2])  # the last cell ends at the box
+
+
+def test_cell_ids_kernel_equals_numpy(monkeypatch):
+    # rows on cell faces, on the box's far faces and outside it (clipped),
+    # on a grid whose sides are not powers of two
+    from pcprep.filters import _kernels
+
+    g = np.random.default_rng(3)
+    lo, sides, shape = np.array([-1.5, 2.0, 1e5]), np.array([0.3, 0.7, 0.11]), (7, 5, 13)
+    on_faces = lo + g.integers(0, 8, (500, 3)) * sides
+    inside = lo + g.uniform(0, 1, (5000, 3)) * sides * shape
+    outside = lo + g.uniform(-0.5, 1.5, (500, 3)) * sides * shape
+    xyz = np.concatenate([on_faces, inside, outside])
+    got = tiles._cell_ids(xyz, lo, sides, shape)
+    monkeypatch.setattr(_kernels, "ENABLED", False)
+    ref = tiles._cell_ids(xyz, lo, sides, shape)
+    assert _kernels.HAVE_NUMBA and got.dtype == ref.dtype == np.int64
+    assert np.array_equal(got, ref)
+    assert len(np.unique(ref)) > 300 and ref.min() == 0 and ref.max() == math.prod(shape) - 1
