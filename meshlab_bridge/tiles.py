@@ -244,17 +244,19 @@ def extended(src: Source, index: TileIndex, c: int, halo: float):
     m = np.ceil(halo / index.sides)
     ijk = np.array(np.unravel_index(c, index.shape))
     near = (np.abs(index.coords - ijk) <= m).all(axis=1)
-    parts = []
-    for cc in index.cells[near]:
-        rows = index.core_rows(int(cc))
+    rows, pos, core = [], [], []
+    for cc in index.cells[near]:  # each cell's rows are ascending, read once
+        r = index.core_rows(int(cc))
+        p = np.asarray(src.xyz[r])
         if cc != c:
-            p = np.asarray(src.xyz[rows])
             inside = ((p >= blo) & (p <= bhi)).all(axis=1)
-            rows = rows[inside]
-        parts.append(rows)
-    rows = np.sort(np.concatenate(parts))
-    core = np.isin(rows, index.core_rows(c), assume_unique=True)
-    return rows, np.asarray(src.xyz[rows]), core, blo, bhi
+            r, p = r[inside], p[inside]
+        rows.append(r)
+        pos.append(p)
+        core.append(np.full(len(r), cc == c))
+    rows = np.concatenate(rows)
+    order = np.argsort(rows, kind="stable")  # merges the ascending runs
+    return rows[order], np.concatenate(pos)[order], np.concatenate(core)[order], blo, bhi
 
 
 # ---------------------------------------------------------------------------
