@@ -449,21 +449,37 @@ def _spacing_tile(points, lo, hi, core, *, centre, n_total):
     return {"exact": True, "rows": d[:, 1:].mean(axis=1)}
 
 
-def _outlier_tile(points, lo, hi, core, *, centre, h, n_total, method, k, radius,
-                  min_neighbors, std_ratio):
+def _spacing_outlier_tile(points, lo, hi, core, *, centre, n_total, k):
+    """Pass 1 of the statistical outlier test: from one query of the k-NN
+    (k ≥ ``SPACING_K``), every row's mean distance to its ``SPACING_K``
+    nearest neighbours (for h, as ``_spacing_tile``) and to its k nearest
+    (the score before its division by h): the score reads no h, so the two
+    need not be separate passes.  The distances of the first neighbours are
+    those of a shorter query, so both means are ``_spacing_tile``'s and
+    ``_outlier_tile``'s to the bit."""
     x = points - centre
     kk = max(k, SPACING_K) + 1
     if len(x) < min(kk, n_total):
         return {"exact": False}
+    d, _ = knn(x, kk, tree=build_tree(x))
+    miss = tile_miss(x[core], d[core, -1], lo - centre, hi - centre)
+    if miss is not None:
+        return miss
+    return {"exact": True, "rows": d[:, 1:SPACING_K + 1].mean(axis=1),
+            "mean": d[:, 1:k + 1].mean(axis=1)}
+
+
+def _outlier_tile(points, lo, hi, core, *, centre, h, n_total, method, k, radius,
+                  min_neighbors, std_ratio):
+    """Pass 2 of the radius outlier test: every row's neighbour count within
+    r·h, which reads nothing beyond r·h.  (The statistical test is one pass,
+    ``_spacing_outlier_tile``.)"""
+    x = points - centre
     tree = build_tree(x)
-    d, _ = knn(x, kk, tree=tree)
-    if method == "statistical":
-        reach, score = d[:, -1], d[:, 1:k + 1].mean(axis=1) / h
-    else:
-        reach = np.maximum(d[:, -1], radius * h)
-        counts = tree.query_ball_point(x, r=radius * h, return_length=True, workers=1)
-        score = np.asarray(counts, dtype=np.float64) - 1.0
-    miss = tile_miss(x[core], reach[core], lo - centre, hi - centre)
+    counts = tree.query_ball_point(x, r=radius * h, return_length=True, workers=1)
+    score = np.asarray(counts, dtype=np.float64) - 1.0
+    reach = np.full(int(core.sum()), radius * h)
+    miss = tile_miss(x[core], reach, lo - centre, hi - centre)
     if miss is not None:
         return miss
     return {"exact": True, "score": score}
@@ -545,11 +561,11 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
             runner = _Runner(cl, source, index, scratch, on_result)
-            h = _fit_spacing(runner, source, index)
-            family = _FAMILIES[spec.command]
             t1 = time.perf_counter()
-            out = family(runner, source, normals, h, resolved)
-            total = time.perf_counter() - t1 + runner.times["spacing"]
+            in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
+            h = None if in_pass else _fit_spacing(runner, source, index)
+            out = _FAMILIES[spec.command](runner, source, normals, h, resolved)
+            total = time.perf_counter() - t1
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
                              cpu_passes=dict(runner.cpu),
                              time_driver=total - sum(runner.times.values()),
@@ -583,10 +599,19 @@ def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     def collect(rows, core, res):
         rows6[rows[core]] = res["rows"][core]
 
-    halo0 = 0.05 * float(index.sides.max())
-    runner.run("spacing", _spacing_tile, halo0, {"centre": src.centre, "n_total": src.n},
-               collect)
+    runner.run("spacing", _spacing_tile, _first_halo(index),
+               {"centre": src.centre, "n_total": src.n}, collect)
     runner.halo.clear()
+    return _h_from_rows(rows6)
+
+
+def _first_halo(index: TileIndex) -> float:
+    """The halo of a pass that runs before h is known: a twentieth of a cell
+    (tiles whose neighbours reach farther say by how much and run again)."""
+    return 0.05 * float(index.sides.max())
+
+
+def _h_from_rows(rows6: np.ndarray) -> float:
     h = spacing_from_rows(rows6)
     if not np.isfinite(h) or h <= 0:
         raise PointCloudError("every point coincides with its neighbours (h = 0)")
@@ -594,17 +619,36 @@ def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
 
 
 def _outliers(runner, src, normals, h, prm) -> TiledResult:
+    """Tiled outlier removal.  Statistical: one pass gives every row's mean
+    6-NN distance (h) and its mean k-NN distance, whose division by h is the
+    score (``h`` comes in None: see ``_SPACING_IN_PASS``).  Radius: the
+    counts within r·h need h, so they are a second pass."""
     from .specs.outliers import tile_hops
 
-    score = runner.store("outlier_score", src.n)
+    if h is None:
+        rows6 = runner.store("spacing", src.n)
+        mean = runner.store("outlier_mean", src.n)
 
-    def collect(rows, core, res):
-        score[rows[core]] = res["score"][core]
+        def collect_both(rows, core, res):
+            rows6[rows[core]] = res["rows"][core]
+            mean[rows[core]] = res["mean"][core]
 
-    args = dict(centre=src.centre, h=h, n_total=src.n, **prm)
-    reach = (prm["radius"] if prm["method"] == "radius" else _knn_reach(max(prm["k"], SPACING_K) + 1)) \
-        + tile_hops(prm)
-    runner.run("outliers", _outlier_tile, reach * h, args, collect)
+        runner.run("spacing and outlier scores", _spacing_outlier_tile,
+                   _first_halo(runner.index),
+                   dict(centre=src.centre, n_total=src.n, k=prm["k"]), collect_both)
+        h = _h_from_rows(rows6)
+        score = runner.map("outlier_score", lambda m: m / h, mean)
+        passes = 1
+    else:  # radius
+        passes = 2
+        score = runner.store("outlier_score", src.n)
+
+        def collect(rows, core, res):
+            score[rows[core]] = res["score"][core]
+
+        args = dict(centre=src.centre, h=h, n_total=src.n, **prm)
+        runner.run("outliers", _outlier_tile, (prm["radius"] + tile_hops(prm)) * h, args,
+                   collect)
     if prm["method"] == "statistical":
         threshold = float(score.mean() + prm["std_ratio"] * score.std())
         out = score > threshold
@@ -614,7 +658,7 @@ def _outliers(runner, src, normals, h, prm) -> TiledResult:
     keep_idx = runner.on_disk("keep_idx", np.flatnonzero(~out))
     removed_idx = runner.on_disk("removed_idx", np.flatnonzero(out))
     return TiledResult({"keep_idx": keep_idx, "removed_idx": removed_idx, "score": score}, h,
-                       {"threshold": threshold, "passes": 2})
+                       {"threshold": threshold, "passes": passes})
 
 
 def _denoise(runner, src, normals, h, prm) -> TiledResult:
@@ -1135,3 +1179,6 @@ class _Centred:
 
 _FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency,
              "features": _sharp, "holes": _holes, "simplify": _simplify}
+#: the filters (by their parameters) whose first pass gives h as well, its
+#: tiles needing no h: run_tiled hands these families h=None
+_SPACING_IN_PASS = {"outliers": lambda prm: prm["method"] == "statistical"}
