@@ -117,14 +117,19 @@ class SharpFeatures:
     reach : (n,) float
         Distance to the largest scale's last neighbour: every feature of the
         row reads only points within it (a tiled run checks its halo with it).
+    spacing_rows : (n,) float or None
+        With ``raw``: every row's mean distance to its ``SPACING_K`` nearest
+        neighbours, from the same query (None when the largest scale is not
+        larger than ``SPACING_K``).
     """
 
     features: np.ndarray
-    h: float
+    h: float | None
     normals: np.ndarray
-    noise_column: np.ndarray
-    ridge_pd: np.ndarray
+    noise_column: np.ndarray | None
+    ridge_pd: np.ndarray | None
     reach: np.ndarray
+    spacing_rows: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -151,7 +156,7 @@ class SharpResult(Detection):
 
 
 def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None,
-                   tree=None, weighted: bool = False) -> SharpFeatures:
+                   tree=None, weighted: bool = False, raw: bool = False) -> SharpFeatures:
     """Features (7.1)-(7.4) of every point at every scale.
 
     Per scale: λ0/h², λ0/λ2, σ = λ0/(λ0 + λ1 + λ2) (7.2) and Pd/h with
@@ -170,6 +175,11 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     tree : cKDTree, optional
     weighted : bool
         The Gaussian weights of (7.1) as printed (``scale_moments``).
+    raw : bool
+        Leave λ0 and Pd in the cloud's units (``h``, ``noise_column`` and
+        ``ridge_pd`` None) and return ``spacing_rows``: for a caller that
+        fits h over more rows than these (a tiled run, whose h is the whole
+        cloud's) and then applies ``scale_features``.
 
     Returns
     -------
@@ -184,8 +194,8 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
     """
     n = len(points)
     ks = np.asarray(ks, dtype=np.int64)
-    own_h = h is None and int(ks[-1]) > SPACING_K
-    if h is None and not own_h:
+    own_h = (h is None or raw) and int(ks[-1]) > SPACING_K
+    if h is None and not own_h and not raw:
         h = average_spacing(points, tree=tree)
     out = np.empty((n, 4 * len(ks)))  # noqa: NPY-empty -- every row written below
     normals = np.empty((n, 3))  # noqa: NPY-empty -- every row written below
@@ -204,16 +214,34 @@ def sharp_features(points: np.ndarray, ks: np.ndarray, *, h: float | None = None
                       np.abs(shift_n)], axis=-1)
         out[at] = f.reshape(len(at), -1)
         normals[at] = m.normal[:, j_nrm]
+    if raw:
+        return SharpFeatures(features=out, h=None, normals=normals, noise_column=None,
+                             ridge_pd=None, reach=reach, spacing_rows=rows)
     if own_h:
         h = spacing_from_rows(rows)
         if not np.isfinite(h) or h <= 0.0:
             raise PointCloudError(
                 "average_spacing: every point coincides with its neighbours (h = 0)")
-    out[:, 0::4] /= h * h                                       # λ0 in h²
-    out[:, 3::4] /= h                                           # Pd in h
+    scale_features(out, h)
     return SharpFeatures(features=out, h=float(h), normals=normals,
                          noise_column=out[:, 0].copy(),
-                         ridge_pd=out[:, 3::4][:, len(ks) // 2:].mean(axis=1), reach=reach)
+                         ridge_pd=ridge_factor(out[:, 3::4][:, len(ks) // 2:]), reach=reach)
+
+
+def scale_features(out: np.ndarray, h: float) -> None:
+    """λ0 in h² and Pd in h (7.2), (7.4), in place, for scale-major rows
+    (λ0, λ0/λ2, σ, Pd) of ``sharp_features``: the rule that makes the
+    features independent of the cloud's scale."""
+    out[:, 0::4] /= h * h
+    out[:, 3::4] /= h
+
+
+def ridge_factor(pd: np.ndarray) -> np.ndarray:
+    """The ridge strength's factor: every row's mean Pd/h over the larger
+    half of the scales, ``pd`` (m, s) being those columns.  The mean is taken
+    over a contiguous copy, so that a tiled run, which holds the columns
+    apart, gets the same bits."""
+    return np.ascontiguousarray(pd).mean(axis=1)
 
 
 def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float:
@@ -439,7 +467,7 @@ def _detect(points, normals=None, *, rules: _SharpRules = DEFAULT_RULES,
     return _run(points, normals, *split_params(kw), rules)
 
 
-def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: int,
+def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float | None, n_total: int,
                params: dict, mask=None, normals=None, ridge=None,
                sigma: float = 0.0) -> dict:
     """One tile of a tiled run (``pcprep.meshlab_bridge.tiles``), default rules.
@@ -447,10 +475,13 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
     ``points`` are every point of the cloud in the box ``[lo, hi]`` (its core
     rows ``core``); ``params`` the validated keywords of
     ``detect_sharp_features``.  Stage ``"features"`` returns the core rows'
-    features (7.1)-(7.4) with the given cloud-wide h, column by column (a
-    (d, m) array: the tiler stores features by column, and the transpose is
-    done here, on the workers, not on the driver), their PCA normals and ridge
-    factor; stage ``"gates"`` runs the
+    features (7.1)-(7.4) unscaled (``sharp_features(raw=True)``: λ0 and Pd
+    in the cloud's units, which the tiler divides by the cloud-wide h with
+    ``scale_features``), column by column (a (d, m) array: the tiler stores
+    features by column, and the transpose is done here, on the workers, not
+    on the driver), their PCA normals and their mean 6-NN distances (from
+    the same query: the tiler fits h from them, no pass of its own; ``h`` is
+    not read); stage ``"gates"`` runs the
     crease-angle gate and the localisation on the core rows of the
     thresholded ``mask`` (``normals``, ``ridge`` given for every row; σ̂ is
     cloud-wide) and returns the final mask of the core rows.  A result is ``{"exact": False}`` when a core row's neighbourhood
@@ -467,13 +498,14 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float, n_total: i
             return {"exact": False}
         tree = build_tree(x)
         ks = scale_sizes(score_cfg.k_min, score_cfg.k_max, score_cfg.n_scales)
-        feats = sharp_features(x, ks, h=h, tree=tree, weighted=not rules.uniform_pca)
+        feats = sharp_features(x, ks, tree=tree, weighted=not rules.uniform_pca, raw=True)
         miss = tile_miss(x[core], feats.reach[core], *box)
         if miss is not None:
             return miss
+        rows6 = feats.spacing_rows
         return {"exact": True, "features": np.ascontiguousarray(feats.features[core].T),
                 "normals": feats.normals[core],
-                "ridge_pd": feats.ridge_pd[core]}
+                "spacing_rows": None if rows6 is None else rows6[core]}
     sel = core & mask
     k = local_k(sigma, cfg, rules)
     if sel.any():

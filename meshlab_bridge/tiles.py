@@ -979,27 +979,44 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
 
 
 def _sharp(runner, src, normals, h, prm) -> TiledResult:
-    """Tiled sharp features: the features of every row by tiles (a halo of the
-    largest scale), the score as in ``_scores``, the threshold from every
-    score, the noise level from every row, then the gate and
-    the localisation by tiles (a halo of their largest neighbourhood)."""
+    """Tiled sharp features: the unscaled features and the 6-NN means of
+    every row by tiles, h from those means (when the largest scale has more
+    than 6 neighbours, as by default: ``h`` comes in None, see
+    ``_SPACING_IN_PASS``; a first halo of a twentieth of a cell, else the
+    largest scale's reach), the features scaled and the ridge factor taken
+    on the driver, the score as in ``_scores``, the threshold from every
+    score, the noise level from every row, then the gate and the
+    localisation by tiles (a halo of their largest neighbourhood)."""
     from pcprep.filters import sharp
+    from pcprep.filters.multiscale import scale_sizes
 
     cfg, stage = sharp.split_params(prm)
     n = src.n
-    Fc = _feature_store(runner, 4 * stage.n_scales, n)
+    n_ks = len(scale_sizes(stage.k_min, stage.k_max, stage.n_scales))
+    Fc = _feature_store(runner, 4 * n_ks, n)
     nrm = runner.store("normals", (n, 3))
-    ridge_pd = runner.store("ridge_pd", n)
+    rows6 = runner.store("spacing", n) if h is None else None
 
     def collect(rows, core, res):
         r = rows[core]
         _store_columns(Fc, r, res["features"])
         nrm[r] = res["normals"]
-        ridge_pd[r] = res["ridge_pd"]
+        if rows6 is not None:
+            rows6[r] = res["spacing_rows"]
 
+    halo = _first_halo(runner.index) if h is None else _knn_reach(stage.k_max) * h
+    runner.run("features", sharp.sharp_tile, halo,
+               {"centre": src.centre, "h": None, "n_total": n, "params": prm,
+                "stage": "features"}, collect)
+    if h is None:
+        h = _h_from_rows(rows6)
+        runner.halo.clear()  # the first halo says nothing of the gates' reach
+    ridge_pd = runner.store("ridge_pd", n)
+    for s0 in range(0, n, CHUNK):  # in place, through (m, d) views of the columns
+        rows_view = Fc[:, s0:s0 + CHUNK].T
+        sharp.scale_features(rows_view, h)
+        ridge_pd[s0:s0 + CHUNK] = sharp.ridge_factor(rows_view[:, 3::4][:, n_ks // 2:])
     base = dict(centre=src.centre, h=h, n_total=n, params=prm)
-    runner.run("features", sharp.sharp_tile, _knn_reach(stage.k_max) * h,
-               dict(base, stage="features"), collect)
     sigma = sharp.cloud_state(np.asarray(Fc[0]))
     score = _scores(runner, Fc, stage)
     T = sharp.threshold(score, cfg, sharp.DEFAULT_RULES)
@@ -1030,11 +1047,13 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
     detected points and the border-row candidates only (their positions read
     from the memory map), which are a small part of the cloud."""
     from pcprep.filters import holes
+    from pcprep.filters.multiscale import scale_sizes
 
     cfg, stage = holes.split_params(prm)
     rules = holes.DEFAULT_RULES
     n = src.n
-    Fc = _feature_store(runner, 3 * stage.n_scales, n)
+    Fc = _feature_store(runner, 3 * len(scale_sizes(stage.k_min, stage.k_max,
+                                                    stage.n_scales)), n)
     cols = {c: runner.store(c, n) for c in ("extent", "variation", "shift_mean",
                                             "border_distance", "gap")}
 
@@ -1181,4 +1200,11 @@ _FAMILIES = {"denoise": _denoise, "outliers": _outliers, "saliency": _saliency,
              "features": _sharp, "holes": _holes, "simplify": _simplify}
 #: the filters (by their parameters) whose first pass gives h as well, its
 #: tiles needing no h: run_tiled hands these families h=None
-_SPACING_IN_PASS = {"outliers": lambda prm: prm["method"] == "statistical"}
+_SPACING_IN_PASS = {"outliers": lambda prm: prm["method"] == "statistical",
+                    "features": lambda prm: _sharp_k_max(prm) > SPACING_K}
+
+
+def _sharp_k_max(prm: dict) -> int:
+    from pcprep.filters import sharp
+
+    return sharp.split_params(prm)[1].k_max

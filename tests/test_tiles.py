@@ -274,6 +274,25 @@ def test_features_identical_on_200k_points(client):
     assert set(cpu) == set(res.stats["time_passes"]) and all(v > 0 for v in cpu.values())
 
 
+@pytest.mark.parametrize("kw", [{"k_min": 5, "k_max": 6, "n_scales": 2},
+                                {"k_min": 12, "k_max": 12, "n_scales": 4}])
+def test_features_identical_with_few_scales(client, kw):
+    # k_max ≤ 6: h needs a pass of its own (the features' query does not
+    # reach the 6 nearest); k_min = k_max: the scales collapse to one
+    from pcprep.baselines.datasets import make_shape
+    from pcprep.filters.sharp import detect_sharp_features
+
+    pts = make_shape("fandisk", n=30_000, seed=5).points
+    ref = detect_sharp_features(pts, **kw)
+    res = tiles.run_tiled("features", pts, params=kw, client=client, tiles=4000)
+    assert res.stats["tiles"] >= 6
+    assert ref.mask.sum() > 200
+    assert ("spacing" in res.stats["time_passes"]) == (kw["k_max"] <= 6)
+    assert np.array_equal(res.fields["mask"], ref.mask)
+    assert np.array_equal(res.fields["score"], ref.score)
+    assert res.h == ref.h
+
+
 @pytest.mark.parametrize("cloud", ["random", "mesh-like"])
 def test_holes_identical(client, cloud):
     from pcprep.baselines.datasets import make_shape
@@ -282,8 +301,10 @@ def test_holes_identical(client, cloud):
     # random-like sampling runs the smallest-hole test, mesh-like the border row
     pts = (make_shape("disc", n=30_000, seed=3).points if cloud == "random"
            else _jittered_grid_with_hole())
-    ref = detect_hole_boundaries(pts)
-    res = tiles.run_tiled("holes", pts, client=client, tiles=3000)
+    # mesh-like with scales that collapse to two (k_min = 30, k_max = 31)
+    kw = {} if cloud == "random" else {"k_min": 30, "k_max": 31}
+    ref = detect_hole_boundaries(pts, **kw)
+    res = tiles.run_tiled("holes", pts, params=kw, client=client, tiles=3000)
     assert res.stats["tiles"] >= 6
     assert ref.mask.sum() > 200
     assert np.array_equal(res.fields["mask"], ref.mask)
