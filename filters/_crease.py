@@ -64,7 +64,7 @@ def plane_k(sigma: float) -> int:
 
 
 def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
-                    h: float, k: int = 16, tree=None) -> np.ndarray:
+                    h: float, k: int = 16, tree=None, reach=None) -> np.ndarray:
     """Distance of each selected point to the crease line through its
     neighbourhood, in units of h.
 
@@ -85,6 +85,10 @@ def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
         Average spacing (the unit of the result).
     k : int
         Neighbourhood size (self included).
+    reach : (n,) float, optional
+        Where given, each selected row's entry is raised to the distance of
+        its k-th neighbour (a tiled run checks with it, after the fact, that
+        every neighbourhood read lay inside its tile).
 
     Returns
     -------
@@ -99,7 +103,8 @@ def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
     eye = np.eye(3)
     for s in range(0, len(sel), MOMENT_CHUNK):
         rows = sel[s:s + MOMENT_CHUNK]
-        _, idx = knn(points, k, tree=tree, query=points[rows])
+        d, idx = knn(points, k, tree=tree, query=points[rows])
+        _raise_reach(reach, rows, d)
         w = w_all[idx]
         tot = w.sum(axis=1, keepdims=True)
         w = np.where(tot > 0, w / np.where(tot > 0, tot, 1.0), 1.0 / k)
@@ -112,6 +117,11 @@ def crease_distance(points: np.ndarray, mask: np.ndarray, ridge: np.ndarray, *,
         off = mu - np.einsum("cd,cd->c", mu, t)[:, None] * t
         out[rows] = np.sqrt(np.einsum("cd,cd->c", off, off)) / h
     return out
+
+
+def _raise_reach(reach, rows: np.ndarray, d: np.ndarray) -> None:
+    if reach is not None:
+        reach[rows] = np.maximum(reach[rows], d[:, -1])
 
 
 def _axis(nb: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -161,7 +171,7 @@ def _two_planes(x: np.ndarray, grp: np.ndarray, iters: int):
 
 def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
                        h: float, k: int = _PLANE_K, iters: int = _PLANE_ITERS,
-                       min_angle: float = 15.0, tree=None
+                       min_angle: float = 15.0, tree=None, reach=None
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Distance of each selected point to the intersection line of two planes
     fitted to its neighbourhood, in units of h, and the fit's RMS residual.
@@ -184,6 +194,10 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
         Average spacing (the unit of the results).
     k : int
         Neighbourhood size (self included).
+    reach : (n,) float, optional
+        Where given, each selected row's entry is raised to the distance of
+        its k-th neighbour (a tiled run checks with it, after the fact, that
+        every neighbourhood read lay inside its tile).
 
     Returns
     -------
@@ -203,7 +217,8 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
     sin_min = np.sin(np.radians(min_angle))
     for s in range(0, len(sel), MOMENT_CHUNK):
         rows = sel[s:s + MOMENT_CHUNK]
-        _, idx = knn(points, k, tree=tree, query=points[rows])
+        d, idx = knn(points, k, tree=tree, query=points[rows])
+        _raise_reach(reach, rows, d)
         x = points[idx] - points[rows, None, :]                 # (c, k, 3)
         fits, ra, rb = _two_planes(x, _split_axes(normals[idx]), iters)
         (na, da, ca), (nb_, db, cb) = fits
@@ -223,7 +238,7 @@ def two_plane_distance(points: np.ndarray, mask: np.ndarray, normals: np.ndarray
 
 
 def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
-                  k: int = SPREAD_K, tree=None) -> np.ndarray:
+                  k: int = SPREAD_K, tree=None, reach=None) -> np.ndarray:
     """Angle in degrees by which the normals turn within each selected point's
     neighbourhood.
 
@@ -242,6 +257,10 @@ def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
         Unit normals of every point (any sign), e.g. PCA normals.
     k : int
         Neighbourhood size (self included).
+    reach : (n,) float, optional
+        Where given, each selected row's entry is raised to the distance of
+        its k-th neighbour (a tiled run checks with it, after the fact, that
+        every neighbourhood read lay inside its tile).
 
     Returns
     -------
@@ -254,7 +273,8 @@ def normal_spread(points: np.ndarray, mask: np.ndarray, normals: np.ndarray, *,
     k = min(k, len(points))
     for s in range(0, len(sel), MOMENT_CHUNK):
         rows = sel[s:s + MOMENT_CHUNK]
-        _, idx = knn(points, k, tree=tree, query=points[rows])
+        d, idx = knn(points, k, tree=tree, query=points[rows])
+        _raise_reach(reach, rows, d)
         nb = normals[idx]
         lam = sym3_eig(np.einsum("cki,ckj->cij", nb, nb) / k)[0]
         out[rows] = np.degrees(np.arccos(np.clip(1.0 - 2.0 * lam[:, 1], -1.0, 1.0)))

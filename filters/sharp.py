@@ -258,14 +258,17 @@ def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float
 
 
 def _crease_limits(pts, mask, ridge, normals, *, h: float, sigma: float,
-                   cfg: _SharpConfig, rules: _SharpRules, tree) -> tuple[np.ndarray, np.ndarray]:
+                   cfg: _SharpConfig, rules: _SharpRules, tree,
+                   reach=None) -> tuple[np.ndarray, np.ndarray]:
     """Each detected point's distance to its crease line and the width it must
     meet (two-plane model where it fits, ridge line elsewhere), both in h."""
-    cdist = crease_distance(pts, mask, ridge, h=h, k=localisation_k(sigma), tree=tree)
+    cdist = crease_distance(pts, mask, ridge, h=h, k=localisation_k(sigma), tree=tree,
+                            reach=reach)
     limit = np.full(len(pts), float(cfg.crease_width))
     if rules.two_plane:
         k_pl = plane_k(sigma)
-        pdist, prms = two_plane_distance(pts, mask, normals, h=h, k=k_pl, tree=tree)
+        pdist, prms = two_plane_distance(pts, mask, normals, h=h, k=k_pl, tree=tree,
+                                         reach=reach)
         planar = np.isfinite(pdist) & (prms <= _PLANE_RMS0 + _PLANE_RMS_GAIN * sigma)
         log.info("%s: two-plane crease model (k=%d) fits %d of %d detected points",
                  _FUNC, k_pl, int(planar.sum()), int(mask.sum()))
@@ -286,14 +289,15 @@ def local_k(sigma: float, cfg: _SharpConfig, rules: _SharpRules) -> int:
 
 
 def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float,
-              cfg: _SharpConfig, rules: _SharpRules):
+              cfg: _SharpConfig, rules: _SharpRules, reach=None):
     """The crease-angle gate and the localisation of the thresholded ``mask``
     (changed in place).  Every test reads one detected point's neighbourhood
-    only, given the cloud-wide noise level ``sigma``.  Returns ``spread, cdist,
-    limit`` (None for a step not run)."""
+    only, given the cloud-wide noise level ``sigma``; ``reach``, where given,
+    gets the widest neighbourhood each row read (``_crease``).  Returns
+    ``spread, cdist, limit`` (None for a step not run)."""
     spread = cdist = limit = None
     if rules.angle_gate and cfg.min_angle > 0 and mask.any():
-        spread = normal_spread(pts, mask, normals, tree=tree)
+        spread = normal_spread(pts, mask, normals, tree=tree, reach=reach)
         n_det = int(mask.sum())
         mask &= spread >= cfg.min_angle
         record_step("crease-angle gate", mask)
@@ -301,7 +305,7 @@ def _localise(pts, tree, mask, normals, ridge, *, h: float, sigma: float,
                  _FUNC, cfg.min_angle, int(mask.sum()), n_det)
     if rules.localise and mask.any():
         cdist, limit = _crease_limits(pts, mask, ridge, normals, h=h, sigma=sigma,
-                                      cfg=cfg, rules=rules, tree=tree)
+                                      cfg=cfg, rules=rules, tree=tree, reach=reach)
         n_det = int(mask.sum())
         mask &= cdist <= limit
         record_step("localisation", mask)
@@ -512,9 +516,13 @@ def sharp_tile(points, lo, hi, core, *, stage: str, centre, h: float | None, n_t
         if len(x) < min(k, n_total):
             return {"exact": False}
         tree = build_tree(x)
-        d, _ = tree.query(x[sel], k=[min(k, len(x))], workers=1)
-        miss = tile_miss(x[sel], d[:, -1], *box)
+        reach = np.zeros(len(x))
+        _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, cfg=cfg, rules=rules,
+                  reach=reach)
+        # checked after the steps, with the neighbourhoods they read: when each
+        # lay inside the box, each step saw what it sees in one piece, and so
+        # kept the same rows for the next
+        miss = tile_miss(x[core], reach[core], *box)
         if miss is not None:
             return miss
-        _localise(x, tree, sel, normals, ridge, h=h, sigma=sigma, cfg=cfg, rules=rules)
     return {"exact": True, "mask": sel[core]}
