@@ -436,44 +436,32 @@ class _Runner:
 # tile functions (run on the workers)
 
 
-def _spacing_tile(points, lo, hi, core, *, centre, n_total):
-    """Mean distance to the SPACING_K nearest neighbours of every row (pass 1: h)."""
+def _spacing_tile(points, lo, hi, core, *, centre, n_total, k=None):
+    """Every row's mean distance to its ``SPACING_K`` nearest neighbours (the
+    rows of h) and, with ``k``, to its k nearest ("mean": the statistical
+    outlier score before its division by h, which reads no h, so one pass
+    gives both).  One query of max(k, SPACING_K) neighbours: the first
+    distances of a longer query are those of a shorter one, so the rows are
+    the same bits either way."""
     x = points - centre
-    k = SPACING_K + 1
-    if len(x) < min(k, n_total):
-        return {"exact": False}
-    d, _ = knn(x, min(k, len(x)))
-    miss = tile_miss(x[core], d[core, -1], lo - centre, hi - centre)
-    if miss is not None:
-        return miss
-    return {"exact": True, "rows": d[:, 1:].mean(axis=1)}
-
-
-def _spacing_outlier_tile(points, lo, hi, core, *, centre, n_total, k):
-    """Pass 1 of the statistical outlier test: from one query of the k-NN
-    (k ≥ ``SPACING_K``), every row's mean distance to its ``SPACING_K``
-    nearest neighbours (for h, as ``_spacing_tile``) and to its k nearest
-    (the score before its division by h): the score reads no h, so the two
-    need not be separate passes.  The distances of the first neighbours are
-    those of a shorter query, so both means are ``_spacing_tile``'s and
-    ``_outlier_tile``'s to the bit."""
-    x = points - centre
-    kk = max(k, SPACING_K) + 1
+    kk = max(k or 0, SPACING_K) + 1
     if len(x) < min(kk, n_total):
         return {"exact": False}
-    d, _ = knn(x, kk, tree=build_tree(x))
+    d, _ = knn(x, min(kk, len(x)))
     miss = tile_miss(x[core], d[core, -1], lo - centre, hi - centre)
     if miss is not None:
         return miss
-    return {"exact": True, "rows": d[:, 1:SPACING_K + 1].mean(axis=1),
-            "mean": d[:, 1:k + 1].mean(axis=1)}
+    out = {"exact": True, "rows": d[:, 1:SPACING_K + 1].mean(axis=1)}
+    if k is not None:
+        out["mean"] = d[:, 1:k + 1].mean(axis=1)
+    return out
 
 
 def _outlier_tile(points, lo, hi, core, *, centre, h, n_total, method, k, radius,
                   min_neighbors, std_ratio):
     """Pass 2 of the radius outlier test: every row's neighbour count within
     r·h, which reads nothing beyond r·h.  (The statistical test is one pass,
-    ``_spacing_outlier_tile``.)"""
+    ``_spacing_tile`` with its k.)"""
     x = points - centre
     tree = build_tree(x)
     counts = tree.query_ball_point(x, r=radius * h, return_length=True, workers=1)
@@ -633,7 +621,7 @@ def _outliers(runner, src, normals, h, prm) -> TiledResult:
             rows6[rows[core]] = res["rows"][core]
             mean[rows[core]] = res["mean"][core]
 
-        runner.run("spacing and outlier scores", _spacing_outlier_tile,
+        runner.run("spacing and outlier scores", _spacing_tile,
                    _first_halo(runner.index),
                    dict(centre=src.centre, n_total=src.n, k=prm["k"]), collect_both)
         h = _h_from_rows(rows6)
