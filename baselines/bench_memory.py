@@ -15,7 +15,6 @@ the sizes, 3).  The goal recorded with the numbers is ≤ 1 KB per point at 3M.
 from __future__ import annotations
 
 import logging
-import os
 import subprocess
 import sys
 import tempfile

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _kernels, progress
+from . import _kernels
 from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import progress
 from . import _kernels, sparse
-from ._params import Param, preset_param, resolve_params, validate_params
+from ._params import Param, preset_param, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
 from .neighbors import CHUNK, build_tree, knn, leaf_chunks, spacing_from_rows, weighted_pca

@@ -12,7 +12,6 @@ to 2**53 exactly).
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 

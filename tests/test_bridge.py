@@ -5,9 +5,7 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from pcprep.filters import resolve_params
 from pcprep import InvalidParameterError, PointCloudError
-from pcprep.filters.neighbors import pca_normals
 from pcprep.meshlab_bridge import registry
 from pcprep.meshlab_bridge.apply import apply_filter, filter_list, filter_parameter_text
 from pcprep.meshlab_bridge.convert import Cloud, cloud_to_mesh, mesh_to_cloud, save_cloud, load_cloud
