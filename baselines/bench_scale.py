@@ -176,13 +176,22 @@ def _pin_workers(client) -> None:
         client.run(os.sched_setaffinity, 0, {core}, workers=[addr])
 
 
+#: points of the warm-up run before each timed one-piece run (``run`` and
+#: ``run_speed``)
+WARM_POINTS = 5000
+
+
 def _one_piece_seconds(path: str, name: str) -> float:
-    """Wall time of the filter over the whole cloud in this process (no Dask)."""
+    """Wall time of the filter over the whole cloud in this process (no Dask),
+    after a run on ``WARM_POINTS`` of the points: the first call after an
+    install compiles the numba kernels (about 25 s for denoise), which is not
+    the filter's cost (``run_speed`` warms up the same way)."""
     from pcprep.meshlab_bridge import registry, tiles
     from pcprep.meshlab_bridge.formats import stream
 
     spec = tiles._spec(registry, name)
     pts = np.concatenate([b for _, b in stream.position_chunks(path)])
+    spec.func(pts[::max(1, len(pts) // WARM_POINTS)], **PARAMS.get(name, {}))
     t = time.perf_counter()
     spec.func(pts, **PARAMS.get(name, {}))
     return time.perf_counter() - t
@@ -328,10 +337,6 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     return out
 
 
-#: points of the warm-up run before each timed one of ``run_speed``
-WARM_POINTS = 5000
-
-
 def _speed_filter(name: str, points) -> int:
     """One filter over ``points`` in one piece, with ``PARAMS`` (for
     :func:`harness.measure`: runs in a fresh process)."""
@@ -425,7 +430,10 @@ def _markdown(out: dict) -> str:
              f"real scan of 95,435 points) laid out in copies on a ground grid; "
              f"{out['tile']} core points per tile; LocalCluster of 1 and 2 worker "
              f"processes (1 thread each, each pinned to a core of its own) on a "
-             f"{out['cpus']}-core machine; the one-piece run uses every core.  Wall time includes the streamed read into the scratch memory map, the "
+             f"{out['cpus']}-core machine; the one-piece run uses every core and "
+             f"follows a warm-up run on {WARM_POINTS:,} of the points that fills the "
+             f"compiled kernels' cache.  Wall time includes the streamed read into the "
+             f"scratch memory map, the "
              "tile index, the exact h pass, the filter's passes and the streamed write.", "",
              "Each run is a fresh process (the driver) with its own cluster.  Driver "
              "memory is sampled every 50 ms: all of it and, in brackets, its "
