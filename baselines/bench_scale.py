@@ -181,19 +181,31 @@ def _pin_workers(client) -> None:
 WARM_POINTS = 5000
 
 
+def _warm_rows(points):
+    """About ``WARM_POINTS`` rows of ``points``, evenly strided."""
+    return points[::max(1, len(points) // WARM_POINTS)]
+
+
+def _speed_filter(name: str, points) -> int:
+    """One filter over ``points`` in one piece, with ``PARAMS`` (for
+    :func:`harness.measure`: runs in a fresh process)."""
+    from pcprep.meshlab_bridge import registry, tiles
+
+    tiles._spec(registry, name).func(points, **PARAMS.get(name, {}))
+    return len(points)
+
+
 def _one_piece_seconds(path: str, name: str) -> float:
     """Wall time of the filter over the whole cloud in this process (no Dask),
     after a run on ``WARM_POINTS`` of the points: the first call after an
     install compiles the numba kernels (about 25 s for denoise), which is not
     the filter's cost (``run_speed`` warms up the same way)."""
-    from pcprep.meshlab_bridge import registry, tiles
     from pcprep.meshlab_bridge.formats import stream
 
-    spec = tiles._spec(registry, name)
     pts = np.concatenate([b for _, b in stream.position_chunks(path)])
-    spec.func(pts[::max(1, len(pts) // WARM_POINTS)], **PARAMS.get(name, {}))
+    _speed_filter(name, _warm_rows(pts))
     t = time.perf_counter()
-    spec.func(pts, **PARAMS.get(name, {}))
+    _speed_filter(name, pts)
     return time.perf_counter() - t
 
 
@@ -337,15 +349,6 @@ def run(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> dict:
     return out
 
 
-def _speed_filter(name: str, points) -> int:
-    """One filter over ``points`` in one piece, with ``PARAMS`` (for
-    :func:`harness.measure`: runs in a fresh process)."""
-    from pcprep.meshlab_bridge import registry, tiles
-
-    tiles._spec(registry, name).func(points, **PARAMS.get(name, {}))
-    return len(points)
-
-
 #: timed runs per filter in ``run_speed`` (the median is reported)
 SPEED_REPEATS = 3
 
@@ -381,7 +384,7 @@ def run_speed(quick: bool = False, seed: int = 0, out_dir: str = "reports") -> d
     rows = []
     for name in FILTERS:
         passes.append(float(harness.knn_pass_seconds(pts, 16)))
-        harness.measure(_speed_filter, name, pts[::max(1, n // WARM_POINTS)])
+        harness.measure(_speed_filter, name, _warm_rows(pts))
         runs = [harness.measure(_speed_filter, name, pts) for _ in range(SPEED_REPEATS)]
         bad = next((o for o in runs if not o.ok), None)
         secs = [o.seconds for o in runs] if bad is None else []
@@ -432,8 +435,8 @@ def _markdown(out: dict) -> str:
              f"processes (1 thread each, each pinned to a core of its own) on a "
              f"{out['cpus']}-core machine; the one-piece run uses every core and "
              f"follows a warm-up run on {WARM_POINTS:,} of the points that fills the "
-             f"compiled kernels' cache.  Wall time includes the streamed read into the "
-             f"scratch memory map, the "
+             "compiled kernels' cache.  Wall time includes the streamed read into the "
+             "scratch memory map, the "
              "tile index, the exact h pass, the filter's passes and the streamed write.", "",
              "Each run is a fresh process (the driver) with its own cluster.  Driver "
              "memory is sampled every 50 ms: all of it and, in brackets, its "
