@@ -169,7 +169,10 @@ def largest_angle_gap(offsets: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 def border_gap(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Largest angular gap (radians) of each point's nearest neighbours around
-    their PCA normal (``largest_angle_gap``).
+    their PCA normal (``largest_angle_gap``).  The compiled kernel
+    (``_kernels.border_gap_rows``) reads the offsets from the cloud row by row;
+    the NumPy reference gathers them in chunks.  A tiled run computes it for
+    every row, so its cost is per point of the cloud.
 
     Parameters
     ----------
@@ -184,6 +187,13 @@ def border_gap(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     (m,) float
     """
     m = len(neighbours)
+    if _kernels.ENABLED and m and neighbours.shape[1] > 1:
+        out = np.empty(m)  # noqa: NPY-empty -- every row written by the kernel
+        nb = np.ascontiguousarray(neighbours)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        _kernels.run_chunks(lambda s, e: _kernels.border_gap_rows(pts, nb[s:e], out[s:e]),
+                            m, _kernels.TASK_ROWS)
+        return out
     out = np.zeros(m)
     for s in range(0, m, CHUNK):
         e = min(m, s + CHUNK)

@@ -6,10 +6,11 @@ LARS and orthogonal matching pursuit, one signal at a time), the per-problem
 Lasso of ``lasso_batched``, the k-NN graph orientation of
 ``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
 per-neighbourhood geometry of the saliency filter, the multi-scale moments
-of the feature and hole detectors (``multiscale.scale_moments``) and the hole
-detector's strip extent (``_border.strip_extent_at``) and the tiler's grid
-cells (``tiles._cell_ids``).  Each has a NumPy
-reference that runs when ``ENABLED`` is False; the tests compare the two.
+of the feature and hole detectors (``multiscale.scale_moments``), the hole
+detector's strip extent (``_border.strip_extent_at``) and empty angle
+(``_border.border_gap``), and the tiler's grid cells (``tiles._cell_ids``).
+Each has a NumPy reference that runs when ``ENABLED`` is False; the tests
+compare the two.
 
 The point-cloud filters code one short signal per point (d = 7-40 features,
 up to 10^6 points) on one shared dictionary.  The NumPy solvers in
@@ -1002,3 +1003,55 @@ if HAVE_NUMBA:
                     first = j
                     break
             out[c] = a[first]
+
+    @_jit()
+    def border_gap_rows(points, neighbours, out):
+        """Rows of ``_border.border_gap``: per point the offsets of its
+        neighbours (column 0 is the point), the smallest eigenvector of their
+        centred scatter (``_sym3_eig_into``), the polar angles of the offsets
+        in the plane orthogonal to it (the frame of
+        ``_border.largest_angle_gap``), sorted, and the largest step between
+        consecutive angles, the wrap-around one included."""
+        c_n, k_n = neighbours.shape[0], neighbours.shape[1] - 1
+        y = np.empty((k_n, 3))
+        ang = np.empty(k_n)
+        lam = np.empty((1, 1, 3))
+        nrm = np.empty((1, 1, 3))
+        for c in range(c_n):
+            r = neighbours[c, 0]
+            p0, p1, p2 = points[r, 0], points[r, 1], points[r, 2]
+            s0 = s1 = s2 = 0.0
+            for j in range(k_n):
+                q = neighbours[c, j + 1]
+                y0, y1, y2 = points[q, 0] - p0, points[q, 1] - p1, points[q, 2] - p2
+                y[j, 0], y[j, 1], y[j, 2] = y0, y1, y2
+                s0 += y0
+                s1 += y1
+                s2 += y2
+            m0, m1, m2 = s0 / k_n, s1 / k_n, s2 / k_n
+            a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+            for j in range(k_n):
+                z0, z1, z2 = y[j, 0] - m0, y[j, 1] - m1, y[j, 2] - m2
+                a00 += z0 * z0
+                a01 += z0 * z1
+                a02 += z0 * z2
+                a11 += z1 * z1
+                a12 += z1 * z2
+                a22 += z2 * z2
+            _sym3_eig_into(a00, a01, a02, a11, a12, a22, lam, nrm, 0, 0)
+            n0, n1, n2 = nrm[0, 0, 0], nrm[0, 0, 1], nrm[0, 0, 2]
+            if abs(n0) < 0.9:   # u = n × e_x, else n × e_y
+                u0, u1, u2 = 0.0, n2, -n1
+            else:
+                u0, u1, u2 = -n2, 0.0, n0
+            ul = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+            u0, u1, u2 = u0 / ul, u1 / ul, u2 / ul
+            v0, v1, v2 = n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0
+            for j in range(k_n):
+                y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
+                ang[j] = np.arctan2(y0 * v0 + y1 * v1 + y2 * v2, y0 * u0 + y1 * u1 + y2 * u2)
+            ang.sort()
+            best = 2.0 * np.pi - (ang[k_n - 1] - ang[0])
+            for j in range(k_n - 1):
+                best = max(best, ang[j + 1] - ang[j])
+            out[c] = best

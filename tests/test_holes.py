@@ -549,3 +549,19 @@ def test_strip_extent_compiled_equals_numpy(holed_cube, monkeypatch):
     fallback = strip_extent_at(pts, m.idx, m.rows, *args, h=holed_cube.h)
     assert np.array_equal(fallback, reference)
     assert (reference == 0).any() and (reference > 2.0).any()   # rims and interiors
+
+
+def test_border_gap_compiled_equals_numpy(holed_cube, monkeypatch):
+    """The compiled empty angle against the NumPy reference, on a cloud with
+    rims (gaps near π and more) and interiors (small gaps)."""
+    from pcprep.filters import _kernels
+
+    if not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    pts = centered(holed_cube.points)[0]
+    _, nb = knn(pts, 16)
+    compiled = border_gap(pts, nb)
+    monkeypatch.setattr(_kernels, "ENABLED", False)
+    reference = border_gap(pts, nb)
+    np.testing.assert_allclose(compiled, reference, rtol=0, atol=1e-12)
+    assert (reference > 0.9 * np.pi).any() and (reference < 0.5 * np.pi).any()
