@@ -6,11 +6,15 @@ Clouds larger than one process: spatial tiles with a halo, run on Dask.
 The cloud's positions are streamed once into a memory-mapped (n, 3) float64
 array in a scratch folder (``ingest``); a uniform grid over its bounding box
 cuts it into tiles of about ``target`` core points (``TileIndex``); every tile
-is sent with the points of its box grown by a halo of ``w`` (its *extended*
-region) to a Dask worker, which runs the filter's tile function and returns the
-results of its core rows.  Every row lies in exactly one core.  The driver
-gathers the per-row results into memory maps in the same folder
-(``_Runner.store``), so its own memory does not grow with the cloud.
+runs on a Dask worker with the points of its box grown by a halo of ``w`` (its
+*extended* region), and the results of its core rows go into memory maps in
+the same folder (``_Runner.store``).  Every row lies in exactly one core.
+Where the workers run on the driver's host and read its scratch folder (a
+local cluster; detected), a task is told where its region lies and which
+stored arrays to read and write, and the worker cuts, reads and writes
+itself; elsewhere the driver cuts each region, sends its points and writes
+what comes back.  Either way the driver's memory does not grow with the
+cloud, and the results are the same bits.
 
 Exactness.  A filter declares how many times a point's result reads its
 neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
@@ -28,9 +32,9 @@ has the derivations.
 
 Engine: ``dask.distributed``.  ``client=None`` starts a ``LocalCluster`` sized
 by ``workers`` and ``memory_budget`` (closed at the end); ``scheduler`` attaches
-to a running one.  Tasks carry their points, so any cluster works; a task lost
-with its worker is run again by the scheduler, and every core row is written
-exactly once (checked).
+to a running one.  A task lost with its worker is run again by the scheduler
+(it writes the same values again: nothing is lost or added), and every core
+row is counted exactly once (checked).
 """
 
 from __future__ import annotations
@@ -234,29 +238,47 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
     return TileIndex(src.lo.copy(), float(side), sides, shape, order, start, cells, coords)
 
 
-def extended(src: Source, index: TileIndex, c: int, halo: float):
-    """The rows of the box of cell ``c`` grown by ``halo`` (the cloud's outer
-    sides stay open: ±inf), their positions, the core mask and the box."""
+def _spans(src: Source, index: TileIndex, c: int, halo: float):
+    """Where the extended region of cell ``c`` lies in ``index.order``: one
+    ``(is_core, start, end)`` row per cell near enough to reach the box of
+    ``c`` grown by ``halo``, and that box (the cloud's outer sides stay open:
+    ±inf).  A few hundred bytes that say which rows to read, so a task can
+    cut its own points (``_cut``)."""
     lo, hi = index.cell_box(c)
     blo, bhi = lo - halo, hi + halo
     blo = np.where(blo <= src.lo, -np.inf, blo)
     bhi = np.where(bhi >= src.hi, np.inf, bhi)
     m = np.ceil(halo / index.sides)
     ijk = np.array(np.unravel_index(c, index.shape))
-    near = (np.abs(index.coords - ijk) <= m).all(axis=1)
+    near = index.cells[(np.abs(index.coords - ijk) <= m).all(axis=1)]
+    spans = np.c_[near == c, index.start[near], index.start[near + 1]].astype(np.int64)
+    return spans, blo, bhi
+
+
+def _cut(xyz, order, spans, blo, bhi):
+    """The rows of the extended region that ``_spans`` described, ascending,
+    their positions and the core mask: a near cell's rows are kept where they
+    lie in the box, the cell's own all."""
     rows, pos, core = [], [], []
-    for cc in index.cells[near]:  # each cell's rows are ascending, read once
-        r = index.core_rows(int(cc))
-        p = np.asarray(src.xyz[r])
-        if cc != c:
+    for is_core, s, e in spans:  # each cell's rows are ascending, read once
+        r = np.asarray(order[s:e])
+        p = np.asarray(xyz[r])
+        if not is_core:
             inside = ((p >= blo) & (p <= bhi)).all(axis=1)
             r, p = r[inside], p[inside]
         rows.append(r)
         pos.append(p)
-        core.append(np.full(len(r), cc == c))
+        core.append(np.full(len(r), bool(is_core)))
     rows = np.concatenate(rows)
     order = np.argsort(rows, kind="stable")  # merges the ascending runs
-    return rows[order], np.concatenate(pos)[order], np.concatenate(core)[order], blo, bhi
+    return rows[order], np.concatenate(pos)[order], np.concatenate(core)[order]
+
+
+def extended(src: Source, index: TileIndex, c: int, halo: float):
+    """The rows of the box of cell ``c`` grown by ``halo`` (the cloud's outer
+    sides stay open: ±inf), their positions, the core mask and the box."""
+    spans, blo, bhi = _spans(src, index, c, halo)
+    return (*_cut(src.xyz, index.order, spans, blo, bhi), blo, bhi)
 
 
 # ---------------------------------------------------------------------------
@@ -318,19 +340,190 @@ def _submit(client, fn, *args, **kwargs):
         return client.submit(fn, *args, pure=False, **kwargs)
 
 
+class Stored:
+    """A per-row array in the scratch folder, named by its path: what a task
+    is given to read its inputs from or write its results into when the
+    workers share the driver's scratch folder (``_Runner.shared``).  It pickles
+    as the path alone and maps the file on first use in each process; a
+    worker drops its maps at the end of every task (``release``), so that the
+    pages it touched do not stay in its resident memory, which Dask's memory
+    monitor watches.  Tasks given the arrays themselves would carry copies:
+    a memory map pickles as its contents."""
+
+    _maps: dict = {}  # path -> this process's memory map of it
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __reduce__(self):
+        return Stored, (self.path,)
+
+    @property
+    def array(self) -> np.ndarray:
+        a = Stored._maps.get(self.path)
+        if a is None:
+            a = Stored._maps[self.path] = np.load(self.path, mmap_mode="r+")
+        return a
+
+    def __len__(self):
+        return len(self.array)
+
+    def __getitem__(self, key):
+        return self.array[key]
+
+    def __setitem__(self, key, value):
+        self.array[key] = value
+
+    @staticmethod
+    def release() -> None:
+        Stored._maps.clear()
+
+
+def _read(reads: dict | None, rows: np.ndarray, core: np.ndarray) -> dict:
+    """A tile's per-row inputs: ``{arg: (stored, how)}`` gives ``arg`` the
+    stored rows of the extended region (``how="rows"``) or, for
+    ``"first_core"``, ``(i, stored[rows[i]])`` of the tile's first core row
+    ``i``."""
+    out = {}
+    for arg, (src, how) in (reads or {}).items():
+        if src is None:
+            out[arg] = None
+        elif how == "rows":
+            out[arg] = np.asarray(src[rows])
+        else:
+            i = int(np.flatnonzero(core)[0])
+            out[arg] = (i, np.asarray(src[rows[i]]))
+    return out
+
+
+def _finish(cell, rows, core, res, writes, reduce) -> dict:
+    """A tile's exact result written where it goes: ``reduce(cell, rows,
+    core, res)`` (the small part the driver gathers: sums, a sample of the
+    overlap) into ``res["reduced"]``, then each ``(stored, key, how)`` of
+    ``writes`` from ``res[key]`` into the rows of the core: ``how`` says
+    whether ``res[key]`` holds the extended region's rows (``"ext"``), the
+    core's (``"core"``) or the core's as a (d, m) block of columns
+    (``"columns"``); a key whose value is None, or whose ``stored`` is None,
+    is skipped.  The written keys leave ``res``: what remains is what the
+    driver is sent."""
+    if reduce is not None:
+        res["reduced"] = reduce(cell, rows, core, res)
+    r = rows[core]
+    for dst, key, how in writes or ():
+        v = res.pop(key)
+        if v is None or dst is None:
+            continue
+        if how == "ext":
+            dst[r] = v[core]
+        elif how == "core":
+            dst[r] = v
+        else:
+            _store_columns(dst, r, v)
+    return res
+
+
+def _tile_task(fn, cell, xyz, order, spans, blo, bhi, args, reads, writes, reduce):
+    """One tile, run where the scratch folder is shared: the worker cuts its
+    extended region from the stored positions and index (``_cut``), reads
+    its per-row inputs, runs ``fn`` and, when the tile is exact, writes its
+    core rows' results (``_finish``).  A task run twice (its worker lost)
+    writes the same values again."""
+    try:
+        rows, pts, core = _cut(xyz, order, spans, blo, bhi)
+        res = fn(pts, blo, bhi, core, **args, **_read(reads, rows, core))
+        if res["exact"]:
+            _finish(cell, rows, core, res, writes, reduce)
+        return res
+    finally:
+        Stored.release()
+
+
+def _rows_task(fn, read, s0, e, shared, arg, writes):
+    """``fn`` on rows ``[s0, e)`` read from the stored array ``read[0]`` (as
+    rows, or as a (d, m) block of columns when ``read[1] == "columns"``), its
+    parts written into ``writes`` on the worker (``_map_rows``)."""
+    try:
+        part = fn(_read_rows(read, s0, e), shared, arg)
+        _write_rows(writes, s0, part)
+    finally:
+        Stored.release()
+
+
+def _read_rows(read, s0, e):
+    src, how = read
+    if how == "columns":
+        return np.ascontiguousarray(src[:, s0:e])
+    return np.array(src[s0:e])
+
+
+def _write_rows(writes, s0, part) -> None:
+    for dst, v in zip(writes, part if isinstance(part, tuple) else (part,)):
+        dst[s0:s0 + len(v)] = v
+
+
+def _probe(path: str):
+    import socket
+
+    try:
+        with open(path) as f:
+            return socket.gethostname(), f.read()
+    except OSError:
+        return socket.gethostname(), None
+
+
+def _shares_scratch(client, scratch: str) -> bool:
+    """Whether every worker runs on this host and reads this scratch folder:
+    a file with a random token is written and each worker asked for its
+    host name and the token it reads.  Only then may tasks write into the
+    stored arrays (workers on other hosts reaching the folder over a network
+    file system would write back whole pages, over other tiles' rows)."""
+    import secrets
+    import socket
+
+    token = secrets.token_hex(16)
+    path = os.path.join(scratch, f"probe-{token}")
+    with open(path, "w") as f:
+        f.write(token)
+    try:
+        got = client.run(_probe, path)
+    finally:
+        with suppress(OSError):
+            os.remove(path)
+    here = socket.gethostname()
+    return bool(got) and all(v == (here, token) for v in got.values())
+
+
 class _Runner:
     """One pass over the tiles: submit, collect, re-run a tile whose halo was
     too narrow with a wider one, and check that every core row came once.
-    ``store`` gives the per-row arrays the driver gathers."""
+    ``store`` gives the per-row arrays, on disk in the scratch folder.
 
-    def __init__(self, client, src: Source, index: TileIndex, scratch: str, on_result=None):
+    Where the workers share the scratch folder (``shared``: a local cluster,
+    by default detected) a task is sent where its region lies (``_spans``)
+    and the handles of the arrays it reads and writes (``Stored``), and the
+    worker does the cutting, the reading and the writing; elsewhere the
+    driver cuts each region, sends its points and writes the results.  Both
+    run the same ``_cut``, ``_read`` and ``_finish``, so they give the same
+    bits; the first keeps the driver's CPU, which the workers' cores share on
+    one machine, out of the per-row work."""
+
+    def __init__(self, client, src: Source, index: TileIndex, scratch: str, on_result=None,
+                 shared: bool | None = None):
         self.client, self.src, self.index = client, src, index
         self.scratch, self.on_result = scratch, on_result
+        if shared is None:
+            shared = isinstance(src.xyz, np.memmap) and isinstance(index.order, np.memmap) \
+                and _shares_scratch(client, scratch)
+        elif shared and not _shares_scratch(client, scratch):
+            raise InvalidParameterError(f"worker_io: the workers do not all run on this host "
+                                        f"with the scratch folder {scratch}")
+        self.shared = bool(shared)
+        if self.shared:
+            self.xyz_h, self.order_h = self.handle(src.xyz), self.handle(index.order)
         self.halo = {}  # cell -> the halo that proved wide enough
         self.times = {}  # pass label -> wall seconds
         self.cpu = {}  # pass label -> the driver's CPU seconds (all its threads)
         self.passes = 0
-        self.cell = None  # the cell whose result ``collect`` is given
 
     def store(self, name: str, shape, dtype=np.float64) -> np.ndarray:
         """A zero-filled memory map ``scratch/name.npy``: every per-row array
@@ -344,6 +537,11 @@ class _Runner:
                                         f"{name}.npy (from another run?); give an empty one")
         shape = (shape,) if np.isscalar(shape) else tuple(shape)
         return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+
+    @staticmethod
+    def handle(arr):
+        """The ``Stored`` handle of a stored array (None stays None)."""
+        return None if arr is None else Stored(os.path.abspath(arr.filename))
 
     def on_disk(self, name: str, values: np.ndarray) -> np.ndarray:
         """``values`` copied into ``store(name)``, chunk by chunk (the
@@ -365,17 +563,24 @@ class _Runner:
             out[s0:s0 + len(part)] = part
         return out
 
-    def run(self, label: str, fn, halo: float, args: dict, collect, per_tile=None) -> None:
-        """``fn(points, lo, hi, core, **args, **per_tile(rows, core))`` on every
-        tile; ``collect(rows, core, result)`` gets each exact result (rows = the
-        extended rows).  A halo that proved too narrow for one tile is too narrow
-        for the others of the same cloud as a rule, so the tiles not yet sent
-        start at the widened halo (results are the same: every tile is checked)."""
+    def run(self, label: str, fn, halo: float, args: dict, writes=(), reads=None,
+            reduce=None, collect=None) -> None:
+        """``fn(points, lo, hi, core, **args, **inputs)`` on every tile, its
+        ``inputs`` read from stored arrays as ``reads`` says (``_read``); each
+        exact result's rows written as ``writes`` says and its small part made
+        by ``reduce`` (``_finish``); ``collect(cell, res)`` then gets what
+        remains of the result on the driver.  ``writes`` and ``reads`` name
+        stored arrays (``store``).  A halo that proved too narrow for one tile
+        is too narrow for the others of the same cloud as a rule, so the
+        tiles not yet sent start at the widened halo (results are the same:
+        every tile is checked)."""
         import time
 
         from dask.distributed import as_completed
 
         t0, c0 = time.perf_counter(), time.process_time()
+        writes = [(self.handle(a), key, how) for a, key, how in writes]
+        reads = {k: (self.handle(a), how) for k, (a, how) in (reads or {}).items()}
         cells = [int(c) for c in self.index.cells]
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
@@ -390,10 +595,17 @@ class _Runner:
                 while queue and futures.count() < limit:
                     c = queue.pop(0)
                     width[c] = max(width[c], floor)
-                    rows, pts, core, lo, hi = extended(self.src, self.index, c, width[c])
-                    more = {} if per_tile is None else per_tile(rows, core)
-                    fut = _submit(self.client, fn, pts, lo, hi, core, **args, **more)
-                    meta[fut.key] = (c, rows, core)
+                    spans, lo, hi = _spans(self.src, self.index, c, width[c])
+                    if self.shared:
+                        fut = _submit(self.client, _tile_task, fn, c, self.xyz_h,
+                                      self.order_h, spans, lo, hi, args, reads, writes,
+                                      reduce)
+                        meta[fut.key] = (c, None, None)
+                    else:
+                        rows, pts, core = _cut(self.src.xyz, self.index.order, spans, lo, hi)
+                        fut = _submit(self.client, fn, pts, lo, hi, core, **args,
+                                      **_read(reads, rows, core))
+                        meta[fut.key] = (c, rows, core)
                     futures.add(fut)
             submit()
             for fut in futures:
@@ -412,9 +624,11 @@ class _Runner:
                     queue.insert(0, c)
                 else:
                     self.halo[c] = width[c]
-                    seen[rows[core]] += 1
-                    self.cell = c
-                    collect(rows, core, res)
+                    if not self.shared:
+                        _finish(c, rows, core, res, writes, reduce)
+                    seen[self.index.core_rows(c)] += 1
+                    if collect is not None:
+                        collect(c, res)
                     advance()
                     if self.on_result is not None:
                         self.on_result(label, c)
@@ -428,6 +642,7 @@ class _Runner:
                 raise RuntimeError(f"{label}: rows {bad} were written "
                                    f"{sorted(set(seen[bad].tolist()))} times")
         path, seen = seen.filename, None
+        Stored.release()  # the driver's own maps of what it read or wrote for the tasks
         with suppress(OSError):  # where a mapped file cannot be removed, rmtree does it later
             os.remove(path)
 
@@ -491,7 +706,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
               params: dict | None = None, client=None, tiles="auto",
               workers: int | None = None, scheduler: str | None = None,
               memory_budget=None, scratch: str | None = None, on_result=None,
-              grid_side: float | None = None) -> TiledResult:
+              grid_side: float | None = None, worker_io: bool | None = None) -> TiledResult:
     """Run registered filter ``name`` tile by tile on Dask; the result of every
     row is the one a run over the whole cloud gives (see the module docstring).
 
@@ -521,6 +736,13 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     grid_side : float, optional
         The tile grid's cell side in input units, instead of one chosen from
         ``tiles`` (to align tiles with a grid the data already has).
+    worker_io : bool, optional
+        Whether the workers cut their tiles from the stored positions and
+        write their rows' results into the stored arrays themselves, which
+        needs every worker on this host with the scratch folder (``True``:
+        checked, refused otherwise), or the driver does and tasks carry their
+        points (``False``: any cluster).  By default, the first wherever it
+        is possible.  The results are the same bits either way.
     """
     from . import registry
 
@@ -548,7 +770,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             t_index = time.perf_counter() - t0
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
-            runner = _Runner(cl, source, index, scratch, on_result)
+            runner = _Runner(cl, source, index, scratch, on_result, shared=worker_io)
             t1 = time.perf_counter()
             in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
             h = None if in_pass else _fit_spacing(runner, source, index)
@@ -558,6 +780,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
                              cpu_passes=dict(runner.cpu),
                              time_driver=total - sum(runner.times.values()),
                              tiles=len(index.cells), grid_side=index.side,
+                             worker_io=runner.shared,
                              grid_shape=index.shape, target=target,
                              halo_max=max(runner.halo.values()) if runner.halo else 0.0)
             if own:  # the scratch folder goes: the fields come back as arrays
@@ -583,12 +806,8 @@ def _spec(registry, name: str):
 def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     """h over the whole cloud from every row's mean 6-NN distance (pass 1)."""
     rows6 = runner.store("spacing", src.n)
-
-    def collect(rows, core, res):
-        rows6[rows[core]] = res["rows"][core]
-
     runner.run("spacing", _spacing_tile, _first_halo(index),
-               {"centre": src.centre, "n_total": src.n}, collect)
+               {"centre": src.centre, "n_total": src.n}, [(rows6, "rows", "ext")])
     runner.halo.clear()
     return _h_from_rows(rows6)
 
@@ -616,27 +835,19 @@ def _outliers(runner, src, normals, h, prm) -> TiledResult:
     if h is None:
         rows6 = runner.store("spacing", src.n)
         mean = runner.store("outlier_mean", src.n)
-
-        def collect_both(rows, core, res):
-            rows6[rows[core]] = res["rows"][core]
-            mean[rows[core]] = res["mean"][core]
-
         runner.run("spacing and outlier scores", _spacing_tile,
                    _first_halo(runner.index),
-                   dict(centre=src.centre, n_total=src.n, k=prm["k"]), collect_both)
+                   dict(centre=src.centre, n_total=src.n, k=prm["k"]),
+                   [(rows6, "rows", "ext"), (mean, "mean", "ext")])
         h = _h_from_rows(rows6)
         score = runner.map("outlier_score", lambda m: m / h, mean)
         passes = 1
     else:  # radius
         passes = 2
         score = runner.store("outlier_score", src.n)
-
-        def collect(rows, core, res):
-            score[rows[core]] = res["score"][core]
-
         args = dict(centre=src.centre, h=h, n_total=src.n, **prm)
         runner.run("outliers", _outlier_tile, (prm["radius"] + tile_hops(prm)) * h, args,
-                   collect)
+                   [(score, "score", "ext")])
     if prm["method"] == "statistical":
         threshold = float(score.mean() + prm["std_ratio"] * score.std())
         out = score > threshold
@@ -661,6 +872,8 @@ def _denoise(runner, src, normals, h, prm) -> TiledResult:
     pos = runner.store("points", (n, 3))
     nrm = runner.store("normals", (n, 3))
     score = runner.store("edge_score", n)
+    given = None if normals is None else \
+        runner.on_disk("given_normals", np.asarray(normals, dtype=np.float64))
     plan: list = []
     runs = 0
     while True:
@@ -668,17 +881,15 @@ def _denoise(runner, src, normals, h, prm) -> TiledResult:
         traces = {}
         align = []
 
-        def collect(rows, core, res):
-            pos[rows[core]] = res["points"][core]
-            nrm[rows[core]] = res["normals"][core]
-            score[rows[core]] = res["edge_score"][core]
-            traces[runner.cell] = res["trace"]
-            align.append(_halo_sample(runner.cell, rows, core, res))
+        def collect(cell, res):
+            traces[cell] = res["trace"]
+            align.append(res["reduced"])
 
         args = dict(centre=src.centre, h=h, n_total=n, hops=hops, plan=tuple(plan), **prm)
-        given = None if normals is None else np.asarray(normals, dtype=np.float64)
-        runner.run("denoise", _denoise_task, hops * HOP_H * h, args, collect,
-                   lambda rows, core: {"normals": None if given is None else given[rows]})
+        runner.run("denoise", _denoise_task, hops * HOP_H * h, args,
+                   [(pos, "points", "ext"), (nrm, "normals", "ext"),
+                    (score, "edge_score", "ext")],
+                   reads={"normals": (given, "rows")}, reduce=_halo_sample, collect=collect)
         traces = [traces[c] for c in sorted(traces)]  # summed in cell order, every run
         wrong = _replay(traces, plan, n, prm["tol"])
         if wrong is None:
@@ -796,17 +1007,15 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
     nrm = runner.store("normals", (n, 3))
     sums, align = {}, []
 
-    def collect_mean(rows, core, res):
-        nrm[rows[core]] = res["normals"][core]
-        i0 = int(np.flatnonzero(core)[0])  # the tile's first core row
-        sums[runner.cell] = (int(rows[i0]), res["normals"][i0].copy(), res["sum"])
-        align.append(_halo_sample(runner.cell, rows, core, res))
+    def collect_mean(cell, res):
+        sums[cell], sample = res["reduced"]
+        align.append(sample)
 
     base = dict(centre=src.centre, h=h, n_total=n, **prm)
     hops = tile_hops(prm)
     halo = (hops + 1) * max(prm["radius"], HOP_H) * h
     runner.run("saliency mean", saliency_tile, halo, dict(base, stage="mean", hops=hops),
-               collect_mean)
+               [(nrm, "normals", "ext")], reduce=_mean_reduce, collect=collect_mean)
     _align_signs(runner, src, nrm, align)
     tot = np.zeros(4)
     for cell in sorted(sums):  # the tiles' sums in the aligned signs, in cell
@@ -818,17 +1027,12 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
     sparsity = runner.store("sparsity", n, np.int64)
     acc = runner.store("accumulated", n)
 
-    def collect_code(rows, core, res):
-        resid[rows[core]] = res["residual"][core]
-        sparsity[rows[core]] = res["sparsity"][core]
-        acc[rows[core]] = res["accumulated"][core]
-
-    def reference(rows, core):  # one core row's aligned normal fixes the tile's signs
-        i = int(np.flatnonzero(core)[0])
-        return {"reference": (i, nrm[rows[i]])}
-
     runner.run("saliency code", saliency_tile, halo,
-               dict(base, stage="code", hops=hops, fbar_mean=fbar_g), collect_code, reference)
+               dict(base, stage="code", hops=hops, fbar_mean=fbar_g),
+               [(resid, "residual", "ext"), (sparsity, "sparsity", "ext"),
+                (acc, "accumulated", "ext")],
+               # one core row's aligned normal fixes the tile's signs
+               reads={"reference": (nrm, "first_core")})
     top_r = float(resid.max())
     top_s = float(sparsity.max()) if prm["measure"] == "mdl" else None
     top_a = float(acc.max())
@@ -844,6 +1048,15 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
     sal = runner.map("saliency", lambda a: ratio(a, top_a), acc)
     return TiledResult({"saliency": sal, "neighbourhood_saliency": s_t, "sparsity": sparsity,
                         "residual": resid, "normals": nrm}, h, {"passes": 3})
+
+
+def _mean_reduce(cell, rows, core, res):
+    """Saliency's first pass, per tile: its sum of the normal block with the
+    tile's first core row and that row's normal (the sign the sum was taken
+    in), and the overlap sample of ``_halo_sample``."""
+    i0 = int(np.flatnonzero(core)[0])
+    return ((int(rows[i0]), res["normals"][i0].copy(), res["sum"]),
+            _halo_sample(cell, rows, core, res))
 
 
 # ---------------------------------------------------------------------------
@@ -904,12 +1117,7 @@ def _scores(runner: _Runner, Fc: np.ndarray, cfg) -> np.ndarray:
         advance()
     t1 = time.perf_counter()
     score = runner.store("score", n)
-
-    def collect(s0, part):
-        score[s0:s0 + len(part)] = part
-
-    _map_rows(runner, "score rows", _score_task, n,
-              lambda s0, e: np.ascontiguousarray(Fc[:, s0:e]), model, cfg, collect)
+    _map_rows(runner, "score rows", _score_task, (Fc, "columns"), model, cfg, [score])
     log.info("score model fitted on the driver in %.1f s (serial)", t1 - t0)
     return score
 
@@ -931,18 +1139,26 @@ def _chunk_rows(n: int, workers: int) -> int:
     return int(min(CHUNK // 4, max(4096, -(-n // (CHUNKS_PER_WORKER * workers)))))
 
 
-def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collect) -> None:
-    """``collect(s0, fn(rows(s0, e), shared, arg))`` for row chunks ``[s0, e)``
-    of a cloud of ``n`` rows, run on the workers with ``shared`` (a model or a
-    dictionary) broadcast once; the driver keeps ``IN_FLIGHT`` chunks per
-    worker in flight.  The pass's wall time goes to ``runner.times[label]``,
-    the driver's CPU time in it to ``runner.cpu[label]``."""
+def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> None:
+    """``fn(rows, shared, arg)`` for row chunks ``[s0, e)`` of the stored array
+    ``read[0]`` (``_read_rows``: rows, or a (d, m) block of columns for
+    ``read[1] == "columns"``), each part (or tuple of parts) written into the
+    stored arrays ``writes`` at ``s0``; run on the workers with ``shared`` (a
+    model or a dictionary) broadcast once, ``IN_FLIGHT`` chunks per worker in
+    flight.  Where the workers share the scratch folder they read and write
+    the rows themselves (``_rows_task``), else the driver does.  The pass's
+    wall time goes to ``runner.times[label]``, the driver's CPU time in it to
+    ``runner.cpu[label]``."""
     import time
 
     from dask.distributed import as_completed
 
     t0, c0 = time.perf_counter(), time.process_time()
     client = runner.client
+    src, how = read
+    n = src.shape[1] if how == "columns" else len(src)
+    read = (runner.handle(src), how)
+    writes = [runner.handle(a) for a in writes]
     [model] = client.scatter([shared], broadcast=True)
     nw = max(1, len(client.scheduler_info()["workers"]))
     step = _chunk_rows(n, nw)
@@ -953,15 +1169,22 @@ def _map_rows(runner: _Runner, label: str, fn, n: int, rows, shared, arg, collec
         def submit():
             while starts and futures.count() < limit:
                 s0 = starts.pop(0)
-                fut = _submit(client, fn, rows(s0, min(n, s0 + step)), model, arg)
+                e = min(n, s0 + step)
+                if runner.shared:
+                    fut = _submit(client, _rows_task, fn, read, s0, e, model, arg, writes)
+                else:
+                    fut = _submit(client, fn, _read_rows(read, s0, e), model, arg)
                 meta[fut.key] = s0
                 futures.add(fut)
         submit()
         for fut in futures:
-            collect(meta.pop(fut.key), fut.result())
-            del fut
+            s0, part = meta.pop(fut.key), fut.result()
+            if not runner.shared:
+                _write_rows(writes, s0, part)
+            del fut, part
             advance()
             submit()
+    Stored.release()
     runner.times[label] = time.perf_counter() - t0
     runner.cpu[label] = time.process_time() - c0
 
@@ -985,17 +1208,12 @@ def _sharp(runner, src, normals, h, prm) -> TiledResult:
     nrm = runner.store("normals", (n, 3))
     rows6 = runner.store("spacing", n) if h is None else None
 
-    def collect(rows, core, res):
-        r = rows[core]
-        _store_columns(Fc, r, res["features"])
-        nrm[r] = res["normals"]
-        if rows6 is not None:
-            rows6[r] = res["spacing_rows"]
-
     halo = _first_halo(runner.index) if h is None else _knn_reach(stage.k_max) * h
     runner.run("features", sharp.sharp_tile, halo,
                {"centre": src.centre, "h": None, "n_total": n, "params": prm,
-                "stage": "features"}, collect)
+                "stage": "features"},
+               [(Fc, "features", "columns"), (nrm, "normals", "core"),
+                (rows6, "spacing_rows", "core")])
     if h is None:
         h = _h_from_rows(rows6)
         runner.halo.clear()  # the first halo says nothing of the gates' reach
@@ -1011,15 +1229,11 @@ def _sharp(runner, src, normals, h, prm) -> TiledResult:
     mask = runner.map("score_mask", lambda v: v > T, score, dtype=bool)       # (7.11)
     ridge = runner.map("ridge", np.multiply, score, ridge_pd)
     final = runner.store("mask", n, bool)
-
-    def collect_gates(rows, core, res):
-        final[rows[core]] = res["mask"]
-
     k = sharp.local_k(sigma, cfg, sharp.DEFAULT_RULES)
     runner.run("feature gates", sharp.sharp_tile, _knn_reach(k) * h,
-               dict(base, stage="gates", sigma=sigma), collect_gates,
-               lambda rows, core: {"mask": mask[rows], "normals": nrm[rows],
-                                   "ridge": ridge[rows]})
+               dict(base, stage="gates", sigma=sigma), [(final, "mask", "core")],
+               reads={"mask": (mask, "rows"), "normals": (nrm, "rows"),
+                      "ridge": (ridge, "rows")})
     log.info("features: threshold %.4g; %d of %d points after the gate and the "
              "localisation", T, int(final.sum()), n)
     quality = runner.map("quality", lambda v: v.astype(np.float64), final)
@@ -1045,15 +1259,9 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
     cols = {c: runner.store(c, n) for c in ("extent", "variation", "shift_mean",
                                             "border_distance", "gap")}
 
-    def collect(rows, core, res):
-        r = rows[core]
-        _store_columns(Fc, r, res["features"])
-        for c, v in cols.items():
-            if res[c] is not None:
-                v[r] = res[c]
-
     runner.run("holes", holes.hole_tile, _knn_reach(stage.k_max) * h,
-               dict(centre=src.centre, h=h, n_total=n, params=prm), collect)
+               dict(centre=src.centre, h=h, n_total=n, params=prm),
+               [(Fc, "features", "columns")] + [(v, c, "core") for c, v in cols.items()])
     score = _scores(runner, Fc, stage)
     feats = holes.HoleFeatures(features=None, h=h, extent=cols["extent"],
                                variation=cols["variation"], near=None,
@@ -1111,15 +1319,13 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
     sigma = runner.store("sigma", n)
     rows6 = runner.store("rows6", n)
 
-    def collect(rows, core, res):
-        r = rows[core]
-        nrm[r], sigma[r], rows6[r] = res["normals"], res["sigma"], res["rows6"]
-
-    given = None if normals is None else np.asarray(normals, dtype=np.float64)
+    given = None if normals is None else \
+        runner.on_disk("given_normals", np.asarray(normals, dtype=np.float64))
     base = dict(centre=centre, h=h, n_total=n, k=k)
     runner.run("simplify features", sd.sdbs_tile, _knn_reach(max(k, sd.GRAPH_K)) * h,
-               dict(base, stage="features"), collect,
-               lambda rows, core: {"normals": None if given is None else given[rows]})
+               dict(base, stage="features"),
+               [(nrm, "normals", "core"), (sigma, "sigma", "core"), (rows6, "rows6", "core")],
+               reads={"normals": (given, "rows")})
     hs = spacing_from_rows(rows6)          # from the float32 lists, as one piece
     t0 = time.perf_counter()
     P = _Centred(src.xyz, centre)
@@ -1138,12 +1344,7 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
              time.perf_counter() - t0)
     nnz = runner.store("nnz", n, np.int64)
     res = runner.store("residual", n)
-
-    def collect_codes(s0, part):
-        nnz[s0:s0 + len(part[0])], res[s0:s0 + len(part[1])] = part
-
-    _map_rows(runner, "simplify codes", _code_task, n, lambda s0, e: np.array(F[s0:e]), D,
-              prm["alpha"], collect_codes)
+    _map_rows(runner, "simplify codes", _code_task, (F, "rows"), D, prm["alpha"], [nnz, res])
     score = runner.on_disk("score", sd.normalised_saliency(nnz, res))
     unit = runner.map("unit", lambda r: hs * (np.maximum(r, 1e-3 * hs) / hs)
                       ** prm["density_adapt"], rows6)
@@ -1155,13 +1356,11 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
         runner.map(None, lambda u, v: dl * u * v, unit, inv, out=rho)
         keep = runner.store(f"keep-{len(trials)}", n, bool)
 
-        def collect_keep(rows, core, res):
-            keep[rows[core]] = res["keep"]
-
         halo = 3.0 * float(np.quantile(rho, 0.999)) + _knn_reach(sd.GRAPH_K) * hs
         runner.halo.clear()
         runner.run("simplify greedy", sd.sdbs_tile, halo, dict(base, stage="greedy"),
-                   collect_keep, lambda rows, core: {"score": score[rows], "rho": rho[rows]})
+                   [(keep, "keep", "core")],
+                   reads={"score": (score, "rows"), "rho": (rho, "rows")})
         trials.append(dl)
         return keep
 
