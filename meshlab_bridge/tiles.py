@@ -511,10 +511,10 @@ class _Runner:
                  shared: bool | None = None):
         self.client, self.src, self.index = client, src, index
         self.scratch, self.on_result = scratch, on_result
+        mapped = isinstance(src.xyz, np.memmap) and isinstance(index.order, np.memmap)
         if shared is None:
-            shared = isinstance(src.xyz, np.memmap) and isinstance(index.order, np.memmap) \
-                and _shares_scratch(client, scratch)
-        elif shared and not _shares_scratch(client, scratch):
+            shared = mapped and _shares_scratch(client, scratch)
+        elif shared and not (mapped and _shares_scratch(client, scratch)):
             raise InvalidParameterError(f"worker_io: the workers do not all run on this host "
                                         f"with the scratch folder {scratch}")
         self.shared = bool(shared)

@@ -409,3 +409,62 @@ def test_cell_ids_kernel_equals_numpy(monkeypatch):
     assert _kernels.HAVE_NUMBA and got.dtype == ref.dtype == np.int64
     assert np.array_equal(got, ref)
     assert len(np.unique(ref)) > 300 and ref.min() == 0 and ref.max() == math.prod(shape) - 1
+
+
+def _family_case(name):
+    from pcprep.baselines.datasets import make_shape
+
+    if name in ("outliers", "saliency"):
+        return CLOUD[:8000], None, {}
+    if name == "denoise":  # given normals: the workers read them from disk
+        g = np.random.default_rng(7)
+        hint = np.c_[0.1 * g.normal(size=(8000, 2)), np.ones(8000)]
+        return CLOUD[:8000], hint / np.linalg.norm(hint, axis=1)[:, None], DENOISE
+    if name == "holes":
+        return make_shape("disc", n=12_000, seed=3).points, None, {}
+    pts = make_shape("fandisk", n=12_000, seed=1).points + [4e5, 3e6, 10.0]
+    return pts, None, ({"ratio": 0.1} if name == "simplify" else {})
+
+
+@pytest.mark.parametrize("name", ["outliers", "denoise", "saliency", "features", "holes",
+                                  "simplify"])
+def test_worker_io_and_driver_io_give_the_same_bits(client, name):
+    # a local cluster shares the scratch disk, so by default the workers cut
+    # their tiles from the memory maps and write their rows in place; with
+    # worker_io=False the driver cuts, sends and stores.  Same cells, same
+    # kernels: the same bits.
+    pts, normals, params = _family_case(name)
+    own = tiles.run_tiled(name, pts, normals, params=params, client=client, tiles=1500)
+    sent = tiles.run_tiled(name, pts, normals, params=params, client=client, tiles=1500,
+                           worker_io=False)
+    assert own.stats["worker_io"] is True and sent.stats["worker_io"] is False
+    assert own.stats["tiles"] >= 4 and set(own.fields) == set(sent.fields)
+    for key, v in own.fields.items():
+        assert np.array_equal(v, sent.fields[key]), key
+    some = {"outliers": "removed_idx", "denoise": "points", "saliency": "saliency",
+            "features": "mask", "holes": "mask", "simplify": "keep_idx"}[name]
+    assert np.count_nonzero(own.fields[some]) > 0
+
+
+def test_stored_arrays_travel_as_paths(tmp_path):
+    # a task that names a stored array carries its path, not its rows
+    import pickle
+
+    a = np.lib.format.open_memmap(tmp_path / "a.npy", mode="w+", dtype=np.float64,
+                                  shape=(100_000, 3))
+    a[:] = 1.5
+    a.flush()
+    h = tiles._Runner.handle(a)
+    blob = pickle.dumps(h)
+    assert len(blob) < 1000
+    back = pickle.loads(blob)
+    assert np.array_equal(back.array[:10], a[:10])
+    tiles.Stored.release()
+
+
+def test_worker_io_refused_where_workers_do_not_share_the_disk(client, monkeypatch):
+    monkeypatch.setattr(tiles, "_shares_scratch", lambda client, scratch: False)
+    with pytest.raises(InvalidParameterError, match="worker_io"):
+        tiles.run_tiled("outliers", CLOUD[:4000], client=client, tiles=1000, worker_io=True)
+    res = tiles.run_tiled("outliers", CLOUD[:4000], client=client, tiles=1000)
+    assert res.stats["worker_io"] is False  # detected, not refused
