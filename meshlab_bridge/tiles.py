@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
+import mmap
 import os
 import shutil
 import tempfile
@@ -69,6 +70,9 @@ SHORT_MARGIN = 1.02
 BYTES_PER_POINT = 4_000
 #: tasks in flight per worker (the driver holds their inputs)
 IN_FLIGHT = 2
+#: bytes of a stored array's pages one scattered read or write may hold mapped
+#: at once (``_gather``, ``_scatter``)
+MAPPED_BYTES = 64 << 20
 
 
 # ---------------------------------------------------------------------------
@@ -261,8 +265,8 @@ def _cut(xyz, order, spans, blo, bhi):
     lie in the box, the cell's own all."""
     rows, pos, core = [], [], []
     for is_core, s, e in spans:  # each cell's rows are ascending, read once
-        r = np.asarray(order[s:e])
-        p = np.asarray(xyz[r])
+        r = np.array(order[s:e])
+        p = _gather(xyz, r)
         if not is_core:
             inside = ((p >= blo) & (p <= bhi)).all(axis=1)
             r, p = r[inside], p[inside]
@@ -374,9 +378,60 @@ class Stored:
     def __setitem__(self, key, value):
         self.array[key] = value
 
+    def drop(self) -> None:
+        """Let go of the pages of this array the process has touched: they
+        leave its resident memory and stay in the page cache, written or not
+        (``MADV_DONTNEED`` on a shared file mapping keeps the file's contents
+        up to date), so the next touch finds them there."""
+        mm = getattr(Stored._maps.get(self.path), "_mmap", None)
+        if mm is not None and hasattr(mmap, "MADV_DONTNEED"):
+            mm.madvise(mmap.MADV_DONTNEED)
+
     @staticmethod
     def release() -> None:
         Stored._maps.clear()
+
+
+def _blocks(idx: np.ndarray, a: np.ndarray):
+    """Slices of ascending row numbers ``idx`` that touch at most
+    ``MAPPED_BYTES`` of ``a``'s pages each (a row of ``a`` lies on one page,
+    two at a page boundary)."""
+    step = max(1, MAPPED_BYTES // max(mmap.PAGESIZE, a[:1].nbytes or 1))
+    for s0 in range(0, max(len(idx), 1), step):
+        yield slice(s0, s0 + step)
+
+
+def _gather(a, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for ascending ``idx``.  From a ``Stored`` array it is read in
+    blocks, each block's pages dropped after it (``Stored.drop``): rows of one
+    tile lie scattered over the whole array when the input is not in spatial
+    order, and a task that kept every page it touched would hold a share of
+    the array that grows with the cloud, counted in its resident memory by the
+    kernel and by Dask's memory monitor."""
+    if not isinstance(a, Stored):
+        return np.asarray(a[idx])
+    arr = a.array
+    shape = (len(idx),) + arr.shape[1:]
+    out = np.empty(shape, dtype=arr.dtype)  # noqa: NPY-empty -- every row written
+    for b in _blocks(idx, arr):
+        out[b] = arr[idx[b]]
+        a.drop()
+    return out
+
+
+def _scatter(a, idx: np.ndarray, values: np.ndarray, column: int | None = None) -> None:
+    """``a[idx] = values`` (of ``a[column]`` when given) for ascending
+    ``idx``, by blocks as ``_gather`` reads."""
+    if not isinstance(a, Stored):
+        if column is None:
+            a[idx] = values
+        else:
+            a[column, idx] = values
+        return
+    arr = a.array if column is None else a.array[column]
+    for b in _blocks(idx, arr):
+        arr[idx[b]] = values[b]
+        a.drop()
 
 
 def _read(reads: dict | None, rows: np.ndarray, core: np.ndarray) -> dict:
@@ -389,10 +444,10 @@ def _read(reads: dict | None, rows: np.ndarray, core: np.ndarray) -> dict:
         if src is None:
             out[arg] = None
         elif how == "rows":
-            out[arg] = np.asarray(src[rows])
+            out[arg] = _gather(src, rows)
         else:
             i = int(np.flatnonzero(core)[0])
-            out[arg] = (i, np.asarray(src[rows[i]]))
+            out[arg] = (i, np.array(src[rows[i]]))
     return out
 
 
@@ -414,9 +469,9 @@ def _finish(cell, rows, core, res, writes, reduce) -> dict:
         if v is None or dst is None:
             continue
         if how == "ext":
-            dst[r] = v[core]
+            _scatter(dst, r, v[core])
         elif how == "core":
-            dst[r] = v
+            _scatter(dst, r, v)
         else:
             _store_columns(dst, r, v)
     return res
@@ -451,14 +506,15 @@ def _rows_task(fn, read, s0, e, shared, arg, writes):
 
 def _read_rows(read, s0, e):
     src, how = read
-    if how == "columns":
-        return np.ascontiguousarray(src[:, s0:e])
-    return np.array(src[s0:e])
+    out = np.ascontiguousarray(src[:, s0:e]) if how == "columns" else np.array(src[s0:e])
+    src.drop()
+    return out
 
 
 def _write_rows(writes, s0, part) -> None:
     for dst, v in zip(writes, part if isinstance(part, tuple) else (part,)):
         dst[s0:s0 + len(v)] = v
+        dst.drop()
 
 
 def _probe(path: str):
@@ -1087,7 +1143,7 @@ def _store_columns(Fc: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
     transpose of an (m, d) block) walks the source with a stride and took
     1.7–2× as long on the driver."""
     for j in range(len(cols)):
-        Fc[j, rows] = cols[j]
+        _scatter(Fc, rows, cols[j], column=j)
 
 
 def _score_task(Fc, model, cfg):
