@@ -468,3 +468,33 @@ def test_worker_io_refused_where_workers_do_not_share_the_disk(client, monkeypat
         tiles.run_tiled("outliers", CLOUD[:4000], client=client, tiles=1000, worker_io=True)
     res = tiles.run_tiled("outliers", CLOUD[:4000], client=client, tiles=1000)
     assert res.stats["worker_io"] is False  # detected, not refused
+
+
+def test_blockwise_reads_and_writes_of_stored_arrays(tmp_path, monkeypatch):
+    # scattered rows of a stored array are read and written in blocks of a few
+    # pages, the pages dropped after each block: the values must be those of
+    # plain indexing, and what is written must reach the file
+    monkeypatch.setattr(tiles, "MAPPED_BYTES", 3 * 4096)
+    g = np.random.default_rng(3)
+    a = np.lib.format.open_memmap(tmp_path / "a.npy", mode="w+", dtype=np.float64,
+                                  shape=(50_000, 3))
+    a[:] = g.normal(size=a.shape)
+    a.flush()
+    c = np.lib.format.open_memmap(tmp_path / "c.npy", mode="w+", dtype=np.float64,
+                                  shape=(4, 50_000))
+    idx = np.sort(g.choice(50_000, 7_000, replace=False))
+    assert len(list(tiles._blocks(idx, a))) > 10
+    h, hc = tiles.Stored(str(tmp_path / "a.npy")), tiles.Stored(str(tmp_path / "c.npy"))
+    try:
+        assert np.array_equal(tiles._gather(h, idx), a[idx])
+        vals = g.normal(size=(len(idx), 3))
+        tiles._scatter(h, idx, vals)
+        cols = g.normal(size=(4, len(idx)))
+        tiles._store_columns(hc, idx, cols)
+    finally:
+        tiles.Stored.release()
+    back, backc = np.load(tmp_path / "a.npy"), np.load(tmp_path / "c.npy")
+    assert np.array_equal(back[idx], vals)
+    assert np.array_equal(np.delete(back, idx, axis=0), np.delete(np.asarray(a), idx, axis=0))
+    assert np.array_equal(backc[:, idx], cols)
+    assert not np.delete(backc, idx, axis=1).any()
