@@ -86,6 +86,11 @@ def _add_filter_command(sub, spec) -> None:
     big.add_argument("--memory-budget", default=None, metavar="BYTES",
                      help="memory limit per local worker (e.g. 4GB; default: the machine's "
                           "memory shared out)")
+    big.add_argument("--worker-io", default=None, choices=("auto", "on", "off"),
+                     help="on: the workers cut their tiles from the scratch folder and "
+                          "write their results into it (every worker on this host; "
+                          "checked); off: the driver does, for any cluster; auto "
+                          "(default): on wherever possible.  Same results either way")
     p.set_defaults(_spec=spec)
 
 
@@ -280,7 +285,7 @@ def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -
 
 def _tiled(args) -> bool:
     return any(getattr(args, a, None) is not None
-               for a in ("tiles", "workers", "scheduler", "memory_budget"))
+               for a in ("tiles", "workers", "scheduler", "memory_budget", "worker_io"))
 
 
 def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
@@ -312,7 +317,8 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
         log.info("%s: %d points from %s (tiled)", spec.command, n, src)
         res = tiles.run_tiled(spec.name, source=source, params=params, tiles=args.tiles,
                               workers=args.workers, scheduler=args.scheduler,
-                              memory_budget=args.memory_budget, scratch=scratch)
+                              memory_budget=args.memory_budget, scratch=scratch,
+                              worker_io={"on": True, "off": False}.get(args.worker_io))
         written = stream.write_streamed(spec, src, dst, res.fields)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
                  written, dst, res.stats["tiles"], res.stats["halo_max"])

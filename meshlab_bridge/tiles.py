@@ -14,7 +14,11 @@ local cluster; detected), a task is told where its region lies and which
 stored arrays to read and write, and the worker cuts, reads and writes
 itself; elsewhere the driver cuts each region, sends its points and writes
 what comes back.  Either way the driver's memory does not grow with the
-cloud, and the results are the same bits.
+cloud, and the results are the same bits.  A tile's rows lie scattered over
+the stored arrays when the input is not in spatial order; they are read and
+written in blocks whose pages are let go after each (``_gather``,
+``_scatter``), so that no process holds a share of an array that grows with
+the cloud.
 
 Exactness.  A filter declares how many times a point's result reads its
 neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
@@ -331,10 +335,12 @@ def tile_target(tiles, client, n: int) -> int:
 
 
 def _submit(client, fn, *args, **kwargs):
-    """``client.submit`` of a task that carries its input arrays.  They travel
-    inside the task, not scattered beforehand: a scattered array dies with its
-    worker, while a task that holds its data can be run again elsewhere, which
-    is how a lost worker costs nothing.  Dask's warning about large task
+    """``client.submit`` of a task that carries its inputs: its points, or
+    where the workers share the scratch folder the paths of the stored arrays
+    it reads (``Stored``).  They travel inside the task, not scattered
+    beforehand: a scattered array dies with its worker, while a task that
+    holds its data can be run again elsewhere, which is how a lost worker
+    costs nothing.  Dask's warning about large task
     graphs is therefore expected here and not shown."""
     import warnings
 

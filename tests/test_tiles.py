@@ -323,9 +323,12 @@ def test_cli_tiled_features_ply(tmp_path):
     assert main(["features", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
     assert main(["features", str(src), str(tmp_path / "tiled.ply"), "--tiles", "2500",
                  "--workers", "2", "--quiet"]) == 0
+    assert main(["features", str(src), str(tmp_path / "sent.ply"), "--tiles", "2500",
+                 "--workers", "2", "--worker-io", "off", "--quiet"]) == 0
     a, b = read_cloud(tmp_path / "one.ply"), read_cloud(tmp_path / "tiled.ply")
+    c = read_cloud(tmp_path / "sent.ply")
     assert a.quality.sum() > 500
-    assert np.array_equal(a.quality, b.quality)
+    assert np.array_equal(a.quality, b.quality) and np.array_equal(a.quality, c.quality)
     assert np.array_equal(a.points, b.points)
 
 
@@ -480,8 +483,8 @@ def test_blockwise_reads_and_writes_of_stored_arrays(tmp_path, monkeypatch):
                                   shape=(50_000, 3))
     a[:] = g.normal(size=a.shape)
     a.flush()
-    c = np.lib.format.open_memmap(tmp_path / "c.npy", mode="w+", dtype=np.float64,
-                                  shape=(4, 50_000))
+    np.lib.format.open_memmap(tmp_path / "c.npy", mode="w+", dtype=np.float64,
+                              shape=(4, 50_000)).flush()  # zeros
     idx = np.sort(g.choice(50_000, 7_000, replace=False))
     assert len(list(tiles._blocks(idx, a))) > 10
     h, hc = tiles.Stored(str(tmp_path / "a.npy")), tiles.Stored(str(tmp_path / "c.npy"))
