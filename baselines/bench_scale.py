@@ -241,7 +241,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
     return {"filter": name, "n": n, "workers": workers, "wall_s": wall, "ingest_s": t_in,
             "index_s": st["time_index"], "passes_s": st["time_passes"],
             "driver_s": st["time_driver"], "write_s": t_out, "serial_s": serial,
-            "pass_cpu_s": sum(st["cpu_passes"].values()),
+            "pass_cpu_s": sum(st["cpu_passes"].values()), "worker_io": st["worker_io"],
             "tiles": st["tiles"], "halo_max_h": st["halo_max"] / h,
             "repeats": {k: st[k] for k in ("denoise_runs", "greedy_passes") if k in st},
             "peak_worker_rss_mb": peaks, "driver_peak_rss_mb": driver.rss,
@@ -437,7 +437,10 @@ def _markdown(out: dict) -> str:
              f"follows a warm-up run on {WARM_POINTS:,} of the points that fills the "
              "compiled kernels' cache.  Wall time includes the streamed read into the "
              "scratch memory map, the "
-             "tile index, the exact h pass, the filter's passes and the streamed write.", "",
+             "tile index, the exact h pass, the filter's passes and the streamed write.  "
+             "Tiled runs use the default I/O, which on a local cluster is the workers' "
+             "own: each cuts its tile from the scratch memory maps and writes its rows "
+             "into them.", "",
              "Each run is a fresh process (the driver) with its own cluster.  Driver "
              "memory is sampled every 50 ms: all of it and, in brackets, its "
              "anonymous part (the rest are pages of the scratch memory maps and the "
@@ -485,9 +488,9 @@ def _markdown(out: dict) -> str:
               "that of these tiles) and divides evenly over P workers of this machine's "
               "per-core speed; no network or shared-filesystem limit.  The driver's "
               "cloud-wide fits (score models, dictionaries, thresholds, border chains) "
-              "count as serial.  The driver also works during the tile passes (it cuts "
-              "each tile from the memory map and gathers every row's result into the "
-              "maps); that does not divide over the workers, so the last column counts "
-              "the driver's CPU seconds in the passes (process time, all its threads) as "
-              "serial too: the bound when workers are many.", ""]
+              "count as serial.  The driver also works during the tile passes (it sends "
+              "each tile's cell, counts the rows written, gathers the tiles' sums and "
+              "overlap samples); that does not divide over the workers, so the last "
+              "column counts the driver's CPU seconds in the passes (process time, all "
+              "its threads) as serial too: the bound when workers are many.", ""]
     return "\n".join(lines)
