@@ -141,7 +141,9 @@ class TileIndex:
 
     Cells are ``sides`` long on each axis (``side``, the grid's nominal cell
     side, or less: see ``build_index``).  ``order`` lists the rows cell by cell
-    (input order within a cell), and ``start[c]:start[c + 1]`` are cell ``c``'s.
+    (input order within a cell), and ``start[c]:start[c + 1]`` are cell ``c``'s;
+    ``xyz`` holds the positions in that order, so that a tile's cells are read
+    as contiguous stretches, whatever order the input came in.
     """
 
     lo: np.ndarray
@@ -152,6 +154,7 @@ class TileIndex:
     start: np.ndarray
     cells: np.ndarray  # non-empty cell ids
     coords: np.ndarray  # their (i, j, k)
+    xyz: np.ndarray  # (n, 3) positions in ``order``
 
     def cell_box(self, c: int):
         ijk = np.array(np.unravel_index(c, self.shape))
@@ -196,7 +199,7 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
     """Tiles of about ``target`` core points: the grid side is chosen on a
     subsample (every m-th row) so that the non-empty cells hold at most
     ``target`` points on average; then one pass counts the rows per cell and a second
-    writes their order.  A ``side`` given is kept as it is (cubic cells from
+    writes their order and their positions in that order.  A ``side`` given is kept as it is (cubic cells from
     the box's low corner, to align with a grid the data has); a chosen one is
     fitted to the box (``_grid``)."""
     n = src.n
@@ -231,19 +234,24 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
     np.cumsum(counts, out=start[1:])
     order = np.lib.format.open_memmap(os.path.join(scratch, "order.npy"), mode="w+",
                                       dtype=np.int64, shape=(n,))
+    xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz_cells.npy"), mode="w+",
+                                    dtype=np.float64, shape=(n, 3))
     fill = start[:-1].copy()
     for s in range(0, n, CHUNK):
-        ids = _cell_ids(src.xyz[s:s + CHUNK], src.lo, sides, shape)
+        pts = np.asarray(src.xyz[s:s + CHUNK])
+        ids = _cell_ids(pts, src.lo, sides, shape)
         srt = np.argsort(ids, kind="stable")
-        ids_s = ids[srt]
+        ids_s, pts = ids[srt], pts[srt]
         uniq, first, cnt = np.unique(ids_s, return_index=True, return_counts=True)
         rows = srt + s
         for c, f, m in zip(uniq, first, cnt):
             order[fill[c]:fill[c] + m] = rows[f:f + m]
+            xyz[fill[c]:fill[c] + m] = pts[f:f + m]
             fill[c] += m
     cells = np.flatnonzero(counts)
     coords = np.array(np.unravel_index(cells, shape)).T
-    return TileIndex(src.lo.copy(), float(side), sides, shape, order, start, cells, coords)
+    return TileIndex(src.lo.copy(), float(side), sides, shape, order, start, cells, coords,
+                     xyz)
 
 
 def _spans(src: Source, index: TileIndex, c: int, halo: float):
@@ -266,17 +274,21 @@ def _spans(src: Source, index: TileIndex, c: int, halo: float):
 def _cut(xyz, order, spans, blo, bhi):
     """The rows of the extended region that ``_spans`` described, ascending,
     their positions and the core mask: a near cell's rows are kept where they
-    lie in the box, the cell's own all."""
+    lie in the box, the cell's own all.  ``xyz`` holds the positions in
+    ``order`` (``TileIndex.xyz``): each cell is one contiguous read."""
     rows, pos, core = [], [], []
     for is_core, s, e in spans:  # each cell's rows are ascending, read once
         r = np.array(order[s:e])
-        p = _gather(xyz, r)
+        p = np.array(xyz[s:e])
         if not is_core:
             inside = ((p >= blo) & (p <= bhi)).all(axis=1)
             r, p = r[inside], p[inside]
         rows.append(r)
         pos.append(p)
         core.append(np.full(len(r), bool(is_core)))
+        for a in (xyz, order):
+            if isinstance(a, Stored):
+                a.drop()
     rows = np.concatenate(rows)
     order = np.argsort(rows, kind="stable")  # merges the ascending runs
     return rows[order], np.concatenate(pos)[order], np.concatenate(core)[order]
@@ -286,7 +298,7 @@ def extended(src: Source, index: TileIndex, c: int, halo: float):
     """The rows of the box of cell ``c`` grown by ``halo`` (the cloud's outer
     sides stay open: ±inf), their positions, the core mask and the box."""
     spans, blo, bhi = _spans(src, index, c, halo)
-    return (*_cut(src.xyz, index.order, spans, blo, bhi), blo, bhi)
+    return (*_cut(index.xyz, index.order, spans, blo, bhi), blo, bhi)
 
 
 # ---------------------------------------------------------------------------
@@ -573,7 +585,7 @@ class _Runner:
                  shared: bool | None = None):
         self.client, self.src, self.index = client, src, index
         self.scratch, self.on_result = scratch, on_result
-        mapped = isinstance(src.xyz, np.memmap) and isinstance(index.order, np.memmap)
+        mapped = isinstance(index.xyz, np.memmap) and isinstance(index.order, np.memmap)
         if shared is None:
             shared = mapped and _shares_scratch(client, scratch)
         elif shared and not (mapped and _shares_scratch(client, scratch)):
@@ -581,7 +593,7 @@ class _Runner:
                                         f"with the scratch folder {scratch}")
         self.shared = bool(shared)
         if self.shared:
-            self.xyz_h, self.order_h = self.handle(src.xyz), self.handle(index.order)
+            self.xyz_h, self.order_h = self.handle(index.xyz), self.handle(index.order)
         self.halo = {}  # cell -> the halo that proved wide enough
         self.times = {}  # pass label -> wall seconds
         self.cpu = {}  # pass label -> the driver's CPU seconds (all its threads)
@@ -664,7 +676,8 @@ class _Runner:
                                       reduce)
                         meta[fut.key] = (c, None, None)
                     else:
-                        rows, pts, core = _cut(self.src.xyz, self.index.order, spans, lo, hi)
+                        rows, pts, core = _cut(self.index.xyz, self.index.order, spans, lo,
+                                               hi)
                         fut = _submit(self.client, fn, pts, lo, hi, core, **args,
                                       **_read(reads, rows, core))
                         meta[fut.key] = (c, rows, core)

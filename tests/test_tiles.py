@@ -391,6 +391,7 @@ def test_grid_cells_fill_the_box_without_slivers(tmp_path):
     assert counts.mean() <= 10_000
     assert counts.min() > 0.5 * counts.max()
     assert np.array_equal(np.sort(np.asarray(index.order)), np.arange(len(pts)))
+    assert np.array_equal(index.xyz, pts[index.order])  # positions in cell order
     lo, hi = index.cell_box(int(index.cells[-1]))
     assert np.allclose(hi[:2], pts.max(axis=0)[:2])  # the last cell ends at the box
 
