@@ -198,10 +198,10 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
                 ) -> TileIndex:
     """Tiles of about ``target`` core points: the grid side is chosen on a
     subsample (every m-th row) so that the non-empty cells hold at most
-    ``target`` points on average; then one pass counts the rows per cell and a second
-    writes their order and their positions in that order.  A ``side`` given is kept as it is (cubic cells from
-    the box's low corner, to align with a grid the data has); a chosen one is
-    fitted to the box (``_grid``)."""
+    ``target`` points on average; then one pass counts the rows per cell and a
+    second writes their order and their positions in that order.  A ``side``
+    given is kept as it is (cubic cells from the box's low corner, to align
+    with a grid the data has); a chosen one is fitted to the box (``_grid``)."""
     n = src.n
     fit = side is None
     ext = float(np.max(src.hi - src.lo))
@@ -286,19 +286,12 @@ def _cut(xyz, order, spans, blo, bhi):
         rows.append(r)
         pos.append(p)
         core.append(np.full(len(r), bool(is_core)))
-        for a in (xyz, order):
-            if isinstance(a, Stored):
-                a.drop()
+    for a in (xyz, order):
+        if isinstance(a, Stored):
+            a.drop()
     rows = np.concatenate(rows)
     order = np.argsort(rows, kind="stable")  # merges the ascending runs
     return rows[order], np.concatenate(pos)[order], np.concatenate(core)[order]
-
-
-def extended(src: Source, index: TileIndex, c: int, halo: float):
-    """The rows of the box of cell ``c`` grown by ``halo`` (the cloud's outer
-    sides stay open: ±inf), their positions, the core mask and the box."""
-    spans, blo, bhi = _spans(src, index, c, halo)
-    return (*_cut(index.xyz, index.order, spans, blo, bhi), blo, bhi)
 
 
 # ---------------------------------------------------------------------------
@@ -363,9 +356,10 @@ def _submit(client, fn, *args, **kwargs):
 
 
 class Stored:
-    """A per-row array in the scratch folder, named by its path: what a task
-    is given to read its inputs from or write its results into when the
-    workers share the driver's scratch folder (``_Runner.shared``).  It pickles
+    """A per-row array in the scratch folder, named by its path: what tiles
+    read their inputs from and write their results into, on the workers when
+    they share the driver's scratch folder (``_Runner.shared``), else on the
+    driver.  It pickles
     as the path alone and maps the file on first use in each process; a
     worker drops its maps at the end of every task (``release``), so that the
     pages it touched do not stay in its resident memory, which Dask's memory
@@ -386,9 +380,6 @@ class Stored:
         if a is None:
             a = Stored._maps[self.path] = np.load(self.path, mmap_mode="r+")
         return a
-
-    def __len__(self):
-        return len(self.array)
 
     def __getitem__(self, key):
         return self.array[key]
@@ -419,15 +410,13 @@ def _blocks(idx: np.ndarray, a: np.ndarray):
         yield slice(s0, s0 + step)
 
 
-def _gather(a, idx: np.ndarray) -> np.ndarray:
-    """``a[idx]`` for ascending ``idx``.  From a ``Stored`` array it is read in
-    blocks, each block's pages dropped after it (``Stored.drop``): rows of one
-    tile lie scattered over the whole array when the input is not in spatial
-    order, and a task that kept every page it touched would hold a share of
-    the array that grows with the cloud, counted in its resident memory by the
-    kernel and by Dask's memory monitor."""
-    if not isinstance(a, Stored):
-        return np.asarray(a[idx])
+def _gather(a: Stored, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for ascending ``idx``, read in blocks, each block's pages
+    dropped after it (``Stored.drop``): rows of one tile lie scattered over
+    the whole array when the input is not in spatial order, and a task that
+    kept every page it touched would hold a share of the array that grows
+    with the cloud, counted in its resident memory by the kernel and by
+    Dask's memory monitor."""
     arr = a.array
     shape = (len(idx),) + arr.shape[1:]
     out = np.empty(shape, dtype=arr.dtype)  # noqa: NPY-empty -- every row written
@@ -437,15 +426,10 @@ def _gather(a, idx: np.ndarray) -> np.ndarray:
     return out
 
 
-def _scatter(a, idx: np.ndarray, values: np.ndarray, column: int | None = None) -> None:
+def _scatter(a: Stored, idx: np.ndarray, values: np.ndarray,
+             column: int | None = None) -> None:
     """``a[idx] = values`` (of ``a[column]`` when given) for ascending
     ``idx``, by blocks as ``_gather`` reads."""
-    if not isinstance(a, Stored):
-        if column is None:
-            a[idx] = values
-        else:
-            a[column, idx] = values
-        return
     arr = a.array if column is None else a.array[column]
     for b in _blocks(idx, arr):
         arr[idx[b]] = values[b]
@@ -1155,12 +1139,12 @@ def _feature_store(runner: _Runner, d: int, n: int) -> np.ndarray:
     return runner.store("features", (d, n))
 
 
-def _store_columns(Fc: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
+def _store_columns(Fc: Stored, rows: np.ndarray, cols: np.ndarray) -> None:
     """``Fc[:, rows] = cols`` for a (d, m) block ``cols`` that a tile sent
-    column by column, one column at a time: each is then a contiguous read
-    and one indexed write, where the 2-D assignment (or one from the
-    transpose of an (m, d) block) walks the source with a stride and took
-    1.7–2× as long on the driver."""
+    column by column, one column at a time (``_scatter``): each is then a
+    contiguous read and one indexed write, where the 2-D assignment (or one
+    from the transpose of an (m, d) block) walks the source with a stride and
+    took 1.7–2× as long on the driver."""
     for j in range(len(cols)):
         _scatter(Fc, rows, cols[j], column=j)
 
