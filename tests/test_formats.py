@@ -63,6 +63,25 @@ def test_las_round_trip_is_bit_exact(tmp_path, fmt, ext):
     assert np.array_equal(a.header.offsets, b.header.offsets)
 
 
+def test_laz_of_several_chunks_written_with_threads_is_the_single_thread_file(tmp_path):
+    """LAZ is read and written with lazrs' threads (``las.laz_backend``); over
+    more than one LAZ chunk (50 000 points each) the file must hold what one
+    thread writes, byte for byte, and read back the same rows either way."""
+    from pcprep.meshlab_bridge.formats import las as las_io, stream
+
+    src = _random_las(tmp_path / "in.laz", 6, n=120_000)
+    cloud = formats.read_cloud(src)
+    ours, one = tmp_path / "ours.laz", tmp_path / "one.laz"
+    formats.write_cloud(cloud, ours)
+    laspy.read(str(ours), laz_backend=laspy.LazBackend.Lazrs).write(
+        str(one), laz_backend=laspy.LazBackend.Lazrs)
+    assert las_io.laz_backend() is laspy.LazBackend.LazrsParallel
+    assert ours.read_bytes() == one.read_bytes()
+    ref = laspy.read(str(src), laz_backend=laspy.LazBackend.Lazrs)
+    got = np.concatenate([b for _, b in stream.position_chunks(ours, size=30_000)])
+    assert np.array_equal(got, np.column_stack([ref.x, ref.y, ref.z]))
+
+
 def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
     src = _random_las(tmp_path / "scan.laz", 6, n=3000)
     out = tmp_path / "holes.laz"

@@ -33,11 +33,21 @@ _NORMALS = (("NormalX", "NormalY", "NormalZ"), ("normal_x", "normal_y", "normal_
 NORMAL_NAMES = _NORMALS[0]
 
 
+def laz_backend():
+    """lazrs with its threads where it is installed (LAZ chunks decode and
+    encode in parallel; the bytes written are the same as one thread's), else
+    laspy's own choice."""
+    import laspy
+
+    par = laspy.LazBackend.LazrsParallel
+    return par if par.is_available() else None
+
+
 def read(path: str) -> Cloud:
     import laspy
 
     try:
-        las = laspy.read(path)
+        las = laspy.read(path, laz_backend=laz_backend())
     except (laspy.errors.LaspyException, RuntimeError) as exc:  # lazrs: RuntimeError
         raise PointCloudError(f"cannot read {path!r}: {exc} (truncated or damaged "
                               "file?)") from exc
@@ -113,7 +123,7 @@ def write(cloud: Cloud, path: str) -> None:
     header, columns = output_header(cloud, path)
     las = record(cloud, header, columns, path)
     las.update_header()
-    las.write(path, do_compress=path.lower().endswith(".laz"))
+    las.write(path, do_compress=path.lower().endswith(".laz"), laz_backend=laz_backend())
 
 
 def output_header(cloud: Cloud, path: str):

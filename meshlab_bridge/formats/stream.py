@@ -23,6 +23,7 @@ import numpy as np
 from pcprep.filters._validation import PointCloudError
 
 from . import _ext, _temporary, read_cloud
+from .las import laz_backend
 
 #: rows per streamed chunk
 CHUNK = 1 << 20
@@ -64,7 +65,7 @@ def position_chunks(path, size: int = CHUNK):
         import laspy
 
         try:
-            with laspy.open(path) as f:
+            with laspy.open(path, laz_backend=laz_backend()) as f:
                 start = 0
                 for pts in f.chunk_iterator(size):
                     xyz = np.column_stack([np.asarray(pts.x, np.float64),
@@ -114,7 +115,7 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
             keep = np.zeros(point_count(src), dtype=bool)
             keep[np.asarray(fields[spec.index_field])] = True
         written = 0
-        with _temporary(dst) as tmp, laspy.open(src) as reader:
+        with _temporary(dst) as tmp, laspy.open(src, laz_backend=laz_backend()) as reader:
             writer = header = None
             start = 0
             try:
@@ -127,6 +128,7 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
                     if writer is None:
                         header, _ = las.output_header(out, dst)
                         writer = laspy.open(tmp, mode="w", header=header,
+                                            laz_backend=laz_backend(),
                                             do_compress=dst.lower().endswith(".laz"))
                     rec = las.record(out, header, las.output_columns(out, header), dst)
                     writer.write_points(rec.points)
