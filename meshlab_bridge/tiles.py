@@ -12,8 +12,9 @@ the same folder (``_Runner.store``).  Every row lies in exactly one core.
 Where the workers run on the driver's host and read its scratch folder (a
 local cluster; detected), a task is told where its region lies and which
 stored arrays to read and write, and the worker cuts, reads and writes
-itself; elsewhere the driver cuts each region, sends its points and writes
-what comes back.  Either way the driver's memory does not grow with the
+itself (each task first checks that it runs there, ``_at_home``, and hands
+its I/O back to the driver where it does not); elsewhere the driver cuts each
+region, sends its points and writes what comes back.  Either way the driver's memory does not grow with the
 cloud, and the results are the same bits.  A tile's rows lie scattered over
 the stored arrays when the input is not in spatial order; they are read and
 written in blocks whose pages are let go after each (``_gather``,
@@ -479,12 +480,20 @@ def _finish(cell, rows, core, res, writes, reduce) -> dict:
     return res
 
 
-def _tile_task(fn, cell, xyz, order, spans, blo, bhi, args, reads, writes, reduce):
+#: what a worker-I/O task returns when it runs where the scratch folder is
+#: not (``_at_home``): the driver then does its I/O
+ELSEWHERE = "elsewhere"
+
+
+def _tile_task(fn, cell, xyz, order, spans, blo, bhi, args, reads, writes, reduce, home):
     """One tile, run where the scratch folder is shared: the worker cuts its
     extended region from the stored positions and index (``_cut``), reads
     its per-row inputs, runs ``fn`` and, when the tile is exact, writes its
     core rows' results (``_finish``).  A task run twice (its worker lost)
-    writes the same values again."""
+    writes the same values again.  A worker that is not where the folder is
+    (``home``, see ``_at_home``) touches nothing and says so."""
+    if not _at_home(home):
+        return {"exact": False, ELSEWHERE: True}
     try:
         rows, pts, core = _cut(xyz, order, spans, blo, bhi)
         res = fn(pts, blo, bhi, core, **args, **_read(reads, rows, core))
@@ -495,10 +504,13 @@ def _tile_task(fn, cell, xyz, order, spans, blo, bhi, args, reads, writes, reduc
         Stored.release()
 
 
-def _rows_task(fn, read, s0, e, shared, arg, writes):
+def _rows_task(fn, read, s0, e, shared, arg, writes, home):
     """``fn`` on rows ``[s0, e)`` read from the stored array ``read[0]`` (as
     rows, or as a (d, m) block of columns when ``read[1] == "columns"``), its
-    parts written into ``writes`` on the worker (``_map_rows``)."""
+    parts written into ``writes`` on the worker (``_map_rows``); ``ELSEWHERE``
+    from a worker that is not where the folder is (``_at_home``)."""
+    if not _at_home(home):
+        return ELSEWHERE
     try:
         part = fn(_read_rows(read, s0, e), shared, arg)
         _write_rows(writes, s0, part)
@@ -529,12 +541,23 @@ def _probe(path: str):
         return socket.gethostname(), None
 
 
-def _shares_scratch(client, scratch: str) -> bool:
-    """Whether every worker runs on this host and reads this scratch folder:
-    a file with a random token is written and each worker asked for its
-    host name and the token it reads.  Only then may tasks write into the
-    stored arrays (workers on other hosts reaching the folder over a network
-    file system would write back whole pages, over other tiles' rows)."""
+def _at_home(home) -> bool:
+    """Whether this process runs on the host ``home = (host, path, token)``
+    names and reads ``token`` in ``path`` (in the scratch folder).  Every
+    worker-I/O task asks first: a worker that joined the cluster after
+    ``_shares_scratch`` asked the others, from another host, must not write
+    through a mapping of its own."""
+    return _probe(home[1]) == (home[0], home[2])
+
+
+def _shares_scratch(client, scratch: str):
+    """``home`` for ``_at_home`` if every worker runs on this host and reads
+    this scratch folder, else None: a file with a random token is written and
+    each worker asked for its host name and the token it reads.  Only then
+    may tasks write into the stored arrays (workers on other hosts reaching
+    the folder over a network file system would write back whole pages, over
+    other tiles' rows).  Where it says yes, the file stays for the tasks to
+    check (``_Runner.close`` removes it)."""
     import secrets
     import socket
 
@@ -542,13 +565,18 @@ def _shares_scratch(client, scratch: str) -> bool:
     path = os.path.join(scratch, f"probe-{token}")
     with open(path, "w") as f:
         f.write(token)
+    home = (socket.gethostname(), path, token)
     try:
         got = client.run(_probe, path)
-    finally:
+    except BaseException:
         with suppress(OSError):
             os.remove(path)
-    here = socket.gethostname()
-    return bool(got) and all(v == (here, token) for v in got.values())
+        raise
+    if got and all(v == (home[0], token) for v in got.values()):
+        return home
+    with suppress(OSError):
+        os.remove(path)
+    return None
 
 
 class _Runner:
@@ -570,12 +598,13 @@ class _Runner:
         self.client, self.src, self.index = client, src, index
         self.scratch, self.on_result = scratch, on_result
         mapped = isinstance(index.xyz, np.memmap) and isinstance(index.order, np.memmap)
-        if shared is None:
-            shared = mapped and _shares_scratch(client, scratch)
-        elif shared and not (mapped and _shares_scratch(client, scratch)):
+        self.home = _shares_scratch(client, scratch) if mapped and shared is not False \
+            else None
+        if shared and not self.home:
             raise InvalidParameterError(f"worker_io: the workers do not all run on this host "
                                         f"with the scratch folder {scratch}")
-        self.shared = bool(shared)
+        self.shared = bool(self.home)
+        self.moved = 0  # worker-I/O tasks redone with the driver's I/O (``_at_home``)
         if self.shared:
             self.xyz_h, self.order_h = self.handle(index.xyz), self.handle(index.order)
         self.halo = {}  # cell -> the halo that proved wide enough
@@ -595,6 +624,18 @@ class _Runner:
                                         f"{name}.npy (from another run?); give an empty one")
         shape = (shape,) if np.isscalar(shape) else tuple(shape)
         return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+
+    def close(self) -> None:
+        """Remove the file ``_at_home`` reads."""
+        if self.home:
+            with suppress(OSError):
+                os.remove(self.home[1])
+
+    def _moved(self, what: str) -> None:
+        if not self.moved:
+            log.warning("a worker does not share the scratch folder %s (another host?): "
+                        "%s redone with the driver reading and writing", self.scratch, what)
+        self.moved += 1
 
     @staticmethod
     def handle(arr):
@@ -645,6 +686,7 @@ class _Runner:
         self.passes += 1
         seen = self.store(f"seen-{self.passes}", self.src.n, np.int8)
         queue = list(cells)
+        direct = set()  # cells a worker away from the scratch folder sent back
         limit = IN_FLIGHT * max(1, len(self.client.scheduler_info()["workers"]))
         futures = as_completed()
         meta = {}
@@ -654,10 +696,10 @@ class _Runner:
                     c = queue.pop(0)
                     width[c] = max(width[c], floor)
                     spans, lo, hi = _spans(self.src, self.index, c, width[c])
-                    if self.shared:
+                    if self.shared and c not in direct:
                         fut = _submit(self.client, _tile_task, fn, c, self.xyz_h,
                                       self.order_h, spans, lo, hi, args, reads, writes,
-                                      reduce)
+                                      reduce, self.home)
                         meta[fut.key] = (c, None, None)
                     else:
                         rows, pts, core = _cut(self.index.xyz, self.index.order, spans, lo,
@@ -671,7 +713,11 @@ class _Runner:
                 c, rows, core = meta.pop(fut.key)
                 res = fut.result()
                 del fut
-                if not res["exact"]:
+                if res.get(ELSEWHERE):
+                    self._moved(f"{label}: tile {c}")
+                    direct.add(c)
+                    queue.insert(0, c)
+                elif not res["exact"]:
                     if np.isinf(self.src.hi - self.src.lo).any() or \
                             width[c] > 4 * float(np.max(self.src.hi - self.src.lo)):
                         raise PointCloudError(f"{label}: tile {c} cannot be made exact")
@@ -683,7 +729,7 @@ class _Runner:
                     queue.insert(0, c)
                 else:
                     self.halo[c] = width[c]
-                    if not self.shared:
+                    if rows is not None:  # the driver's I/O
                         _finish(c, rows, core, res, writes, reduce)
                     seen[self.index.core_rows(c)] += 1
                     if collect is not None:
@@ -831,15 +877,18 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
                      len(index.cells), index.side)
             runner = _Runner(cl, source, index, scratch, on_result, shared=worker_io)
             t1 = time.perf_counter()
-            in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
-            h = None if in_pass else _fit_spacing(runner, source, index)
-            out = _FAMILIES[spec.command](runner, source, normals, h, resolved)
+            try:
+                in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
+                h = None if in_pass else _fit_spacing(runner, source, index)
+                out = _FAMILIES[spec.command](runner, source, normals, h, resolved)
+            finally:
+                runner.close()
             total = time.perf_counter() - t1
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
                              cpu_passes=dict(runner.cpu),
                              time_driver=total - sum(runner.times.values()),
                              tiles=len(index.cells), grid_side=index.side,
-                             worker_io=runner.shared,
+                             worker_io=runner.shared, moved_to_driver_io=runner.moved,
                              grid_shape=index.shape, target=target,
                              halo_max=max(runner.halo.values()) if runner.halo else 0.0)
             if own:  # the scratch folder goes: the fields come back as arrays
@@ -1223,24 +1272,33 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
     step = _chunk_rows(n, nw)
     starts = list(range(0, n, step))
     limit = IN_FLIGHT * nw
-    futures, meta = as_completed(), {}
+    futures, meta, direct = as_completed(), {}, set()
     with progress.step(label, len(starts)) as advance:
         def submit():
             while starts and futures.count() < limit:
                 s0 = starts.pop(0)
                 e = min(n, s0 + step)
-                if runner.shared:
-                    fut = _submit(client, _rows_task, fn, read, s0, e, model, arg, writes)
+                there = runner.shared and s0 not in direct
+                if there:
+                    fut = _submit(client, _rows_task, fn, read, s0, e, model, arg, writes,
+                                  runner.home)
                 else:
                     fut = _submit(client, fn, _read_rows(read, s0, e), model, arg)
-                meta[fut.key] = s0
+                meta[fut.key] = (s0, there)
                 futures.add(fut)
         submit()
         for fut in futures:
-            s0, part = meta.pop(fut.key), fut.result()
-            if not runner.shared:
+            (s0, there), part = meta.pop(fut.key), fut.result()
+            del fut
+            if there and isinstance(part, str) and part == ELSEWHERE:
+                runner._moved(f"{label}: rows {s0}..")
+                direct.add(s0)
+                starts.insert(0, s0)
+                submit()
+                continue
+            if not there:
                 _write_rows(writes, s0, part)
-            del fut, part
+            del part
             advance()
             submit()
     Stored.release()

@@ -474,6 +474,40 @@ def test_worker_io_refused_where_workers_do_not_share_the_disk(client, monkeypat
     assert res.stats["worker_io"] is False  # detected, not refused
 
 
+@pytest.mark.parametrize("name", ["features", "denoise"])
+def test_tasks_on_a_worker_away_from_the_scratch_folder_move_to_driver_io(client, tmp_path,
+                                                                           name):
+    # a worker that cannot read the folder's token (as one that joins from
+    # another host after the check) must touch nothing: each of its tasks,
+    # tile or row chunk, is redone with the driver reading and writing, and
+    # the results are the bits of a run that never shared the folder
+    import glob
+
+    pts, normals, params = _family_case(name)
+    gone = []
+
+    def lose_the_folder(label, cell):
+        if not gone:
+            gone.extend(glob.glob(str(tmp_path / "scratch" / "probe-*")))
+            for p in gone:
+                os.remove(p)
+
+    os.mkdir(tmp_path / "scratch")
+    moved = tiles.run_tiled(name, pts, normals, params=params, client=client, tiles=1500,
+                            scratch=str(tmp_path / "scratch"), on_result=lose_the_folder)
+    sent = tiles.run_tiled(name, pts, normals, params=params, client=client, tiles=1500,
+                           worker_io=False)
+    assert len(gone) == 1 and moved.stats["worker_io"] is True
+    in_flight = tiles.IN_FLIGHT * len(client.scheduler_info()["workers"])
+    assert moved.stats["moved_to_driver_io"] >= moved.stats["tiles"] - in_flight
+    assert sent.stats["moved_to_driver_io"] == 0
+    for key, v in sent.fields.items():
+        assert np.array_equal(np.asarray(moved.fields[key]), v), key
+    some = {"features": "mask", "denoise": "points"}[name]
+    assert np.count_nonzero(sent.fields[some]) > 0
+    tiles.Stored.release()
+
+
 def test_blockwise_reads_and_writes_of_stored_arrays(tmp_path, monkeypatch):
     # scattered rows of a stored array are read and written in blocks of a few
     # pages, the pages dropped after each block: the values must be those of
