@@ -610,6 +610,7 @@ class _Runner:
         self.halo = {}  # cell -> the halo that proved wide enough
         self.times = {}  # pass label -> wall seconds
         self.cpu = {}  # pass label -> the driver's CPU seconds (all its threads)
+        self.cpu_main = {}  # pass label -> of those, the calling thread's (pcprep's own work)
         self.passes = 0
 
     def store(self, name: str, shape, dtype=np.float64) -> np.ndarray:
@@ -677,7 +678,7 @@ class _Runner:
 
         from dask.distributed import as_completed
 
-        t0, c0 = time.perf_counter(), time.process_time()
+        t0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
         writes = [(self.handle(a), key, how) for a, key, how in writes]
         reads = {k: (self.handle(a), how) for k, (a, how) in (reads or {}).items()}
         cells = [int(c) for c in self.index.cells]
@@ -740,6 +741,7 @@ class _Runner:
                 submit()
         self.times[label] = self.times.get(label, 0.0) + time.perf_counter() - t0
         self.cpu[label] = self.cpu.get(label, 0.0) + time.process_time() - c0
+        self.cpu_main[label] = self.cpu_main.get(label, 0.0) + time.thread_time() - m0
         for s0 in range(0, self.src.n, CHUNK):
             part = np.asarray(seen[s0:s0 + CHUNK])
             if not (part == 1).all():
@@ -886,6 +888,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             total = time.perf_counter() - t1
             out.stats.update(time_index=t_index, time_passes=dict(runner.times),
                              cpu_passes=dict(runner.cpu),
+                             cpu_passes_main=dict(runner.cpu_main),
                              time_driver=total - sum(runner.times.values()),
                              tiles=len(index.cells), grid_side=index.side,
                              worker_io=runner.shared, moved_to_driver_io=runner.moved,
@@ -1261,7 +1264,7 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
 
     from dask.distributed import as_completed
 
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
     client = runner.client
     src, how = read
     n = src.shape[1] if how == "columns" else len(src)
@@ -1304,6 +1307,7 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
     Stored.release()
     runner.times[label] = time.perf_counter() - t0
     runner.cpu[label] = time.process_time() - c0
+    runner.cpu_main[label] = time.thread_time() - m0
 
 
 def _sharp(runner, src, normals, h, prm) -> TiledResult:

@@ -272,6 +272,9 @@ def test_features_identical_on_200k_points(client):
     # the driver's CPU time is kept for every pass whose wall time is
     cpu = res.stats["cpu_passes"]
     assert set(cpu) == set(res.stats["time_passes"]) and all(v > 0 for v in cpu.values())
+    # ... and of it the main thread's, pcprep's own work, a part of the whole
+    main = res.stats["cpu_passes_main"]
+    assert set(main) == set(cpu) and all(0 < main[k] <= cpu[k] + 1e-3 for k in cpu)
 
 
 @pytest.mark.parametrize("kw", [{"k_min": 5, "k_max": 6, "n_scales": 2},
