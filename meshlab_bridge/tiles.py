@@ -13,13 +13,13 @@ Where the workers run on the driver's host and read its scratch folder (a
 local cluster; detected), a task is told where its region lies and which
 stored arrays to read and write, and the worker cuts, reads and writes
 itself (each task first checks that it runs there, ``_at_home``, and hands
-its I/O back to the driver where it does not); elsewhere the driver cuts each
-region, sends its points and writes what comes back.  Either way the driver's memory does not grow with the
-cloud, and the results are the same bits.  A tile's rows lie scattered over
-the stored arrays when the input is not in spatial order; they are read and
-written in blocks whose pages are let go after each (``_gather``,
-``_scatter``), so that no process holds a share of an array that grows with
-the cloud.
+its I/O back to the driver where it does not); elsewhere the driver cuts
+each region, sends its points and writes what comes back.  Either way the
+driver's memory does not grow with the cloud, and the results are the same
+bits.  A tile's rows lie scattered over the stored arrays when the input is
+not in spatial order; they are read and written in blocks whose pages are
+let go after each (``_gather``, ``_scatter``), so that no process holds a
+share of an array that grows with the cloud.
 
 Exactness.  A filter declares how many times a point's result reads its
 neighbours' intermediate values (``hops``, in ``specs/*``); the halo starts at
@@ -566,17 +566,15 @@ def _shares_scratch(client, scratch: str):
     with open(path, "w") as f:
         f.write(token)
     home = (socket.gethostname(), path, token)
+    shared = False
     try:
         got = client.run(_probe, path)
-    except BaseException:
-        with suppress(OSError):
-            os.remove(path)
-        raise
-    if got and all(v == (home[0], token) for v in got.values()):
-        return home
-    with suppress(OSError):
-        os.remove(path)
-    return None
+        shared = bool(got) and all(v == (home[0], token) for v in got.values())
+    finally:
+        if not shared:
+            with suppress(OSError):
+                os.remove(path)
+    return home if shared else None
 
 
 class _Runner:
@@ -1293,7 +1291,7 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
         for fut in futures:
             (s0, there), part = meta.pop(fut.key), fut.result()
             del fut
-            if there and isinstance(part, str) and part == ELSEWHERE:
+            if there and part == ELSEWHERE:  # a worker-I/O chunk returns None or this
                 runner._moved(f"{label}: rows {s0}..")
                 direct.add(s0)
                 starts.insert(0, s0)
