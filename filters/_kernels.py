@@ -8,7 +8,8 @@ Lasso of ``lasso_batched``, the k-NN graph orientation of
 per-neighbourhood geometry of the saliency filter, the multi-scale moments
 of the feature and hole detectors (``multiscale.scale_moments``), the hole
 detector's strip extent (``_border.strip_extent_at``) and empty angle
-(``_border.border_gap``), and the tiler's grid cells (``tiles._cell_ids``).
+(``_border.border_gap``), and the tiler's grid cells and their counting sort
+(``tiles._cell_ids``, ``tiles._fill_cells``).
 Each has a NumPy reference that runs when ``ENABLED`` is False; the tests
 compare the two.
 
@@ -717,6 +718,19 @@ if HAVE_NUMBA:
                     v = shape[a] - 1
                 c = c * shape[a] + v
             out[i] = c
+
+    @_jit()
+    def cell_fill(ids, pts, row0, fill, order, xyz):
+        """A counting sort's scatter: row i of a chunk (input row row0 + i)
+        goes to slot fill[ids[i]] of ``order`` and ``xyz``, which then moves
+        on by one; rows keep their input order within a cell."""
+        for i in range(ids.shape[0]):
+            c = ids[i]
+            p = fill[c]
+            order[p] = row0 + i
+            for a in range(3):
+                xyz[p, a] = pts[i, a]
+            fill[c] = p + 1
 
     @_jit()
     def merge_sorted(a, b, out):

@@ -50,6 +50,7 @@ import mmap
 import os
 import shutil
 import tempfile
+import threading
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 
@@ -105,7 +106,9 @@ class Source:
 
 def ingest(chunks, n: int, scratch: str) -> Source:
     """Write streamed ``(start, xyz)`` chunks into ``scratch/xyz.npy``; refuse
-    non-finite rows (naming the first ones)."""
+    non-finite rows (naming the first ones).  The tile index's compiled
+    kernels load meanwhile (``_preload_index_kernels``)."""
+    _preload_index_kernels()
     xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz.npy"), mode="w+",
                                     dtype=np.float64, shape=(n, 3))
     lo = np.full(3, np.inf)
@@ -122,6 +125,32 @@ def ingest(chunks, n: int, scratch: str) -> Source:
             hi = np.maximum(hi, block.max(axis=0))
     xyz.flush()
     return Source(xyz, lo, hi)
+
+
+_preloading: list = []
+
+
+def _preload_index_kernels() -> None:
+    """Start loading ``build_index``'s compiled kernels on a thread, once per
+    process: numba's first call in a process costs about 0.25 s, mostly in
+    LLVM with the GIL released, so it overlaps the ingest's decoding instead
+    of adding to the serial part of a run.  A failure there is left to the
+    index's own call to raise."""
+    from pcprep.filters import _kernels
+
+    if not _kernels.ENABLED or _preloading:
+        return
+
+    def load():
+        with suppress(Exception):
+            one = np.zeros((1, 3))
+            ids = np.zeros(1, dtype=np.int64)
+            _kernels.cell_ids(one, np.zeros(3), np.ones(3), np.ones(3, dtype=np.int64), ids)
+            _kernels.cell_fill(ids, one, 0, np.zeros(1, dtype=np.int64), ids.copy(),
+                               one.copy())
+
+    _preloading.append(threading.Thread(target=load, name="pcprep-preload", daemon=True))
+    _preloading[0].start()
 
 
 def source_from_array(points: np.ndarray, scratch: str) -> Source:
@@ -195,6 +224,67 @@ def _grid(src: Source, side: float, fit: bool = True) -> tuple:
     return tuple(int(v) for v in shape), sides
 
 
+#: the finest grid the side search tries: this many cells on the longest axis
+_MOST_CELLS = 2000
+
+
+def _fit_side(src: Source, sample: np.ndarray, n: int, target: int) -> float:
+    """The largest cell side whose fitted grid leaves at most ``target`` rows
+    per non-empty cell on average (counted on ``sample``, scaled to ``n``).
+    A fitted grid depends on the side only through its shape, ⌈ext_a / side⌉
+    per axis, which changes only where the side crosses ext_a / k for an axis
+    a and a count k: the search is a bisection over one side inside each
+    interval between those points (occupancy grows as the side shrinks), about
+    13 sample counts where a bisection over the side itself takes tens to
+    settle on the same grid."""
+    ext_all = np.maximum(src.hi - src.lo, 1e-300)
+    finest = float(ext_all.max()) / _MOST_CELLS
+    k = np.arange(1, _MOST_CELLS + 1)
+    cuts = np.unique((ext_all[:, None] / k[None, :]).ravel())
+    cuts = cuts[cuts >= finest]
+    cand = np.sqrt(cuts[:-1] * cuts[1:])  # one side strictly inside each interval
+    lo, hi = -1, len(cand)  # cand[lo] fits (lo = -1: none does; the finest grid)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        shape, sides = _grid(src, float(cand[mid]))
+        if n / _occupied(_cell_ids(sample, src.lo, sides, shape), math.prod(shape)) > target:
+            hi = mid
+        else:
+            lo = mid
+    return float(cand[lo]) if lo >= 0 else finest
+
+
+def _occupied(ids: np.ndarray, ncell: int) -> int:
+    """How many distinct cells ``ids`` holds: by marking a byte per cell when
+    the grid is at most 16 bytes per id, else by sorting (both several times
+    faster than ``np.unique``'s hashing on fine grids)."""
+    if ncell <= 16 * len(ids):
+        seen = np.zeros(ncell, dtype=bool)
+        seen[ids] = True
+        return int(np.count_nonzero(seen))
+    s = np.sort(ids)
+    return int(np.count_nonzero(s[1:] != s[:-1])) + 1 if len(s) else 0
+
+
+def _fill_cells(ids, pts, row0: int, fill, order, xyz) -> None:
+    """Place a chunk's rows (input rows ``row0 + i``, cells ``ids``) in cell
+    order: row i goes to slot ``fill[ids[i]]`` of ``order`` and ``xyz``, which
+    then moves on, so a cell's rows keep their input order
+    (``_kernels.cell_fill`` when compiled; this is its NumPy reference)."""
+    from pcprep.filters import _kernels
+
+    if _kernels.ENABLED:
+        _kernels.cell_fill(ids, pts, row0, fill, np.asarray(order), np.asarray(xyz))
+        return
+    srt = np.argsort(ids, kind="stable")
+    uniq, first, cnt = np.unique(ids[srt], return_index=True, return_counts=True)
+    for c, f, m in zip(uniq, first, cnt):
+        rows = srt[f:f + m]
+        order[fill[c]:fill[c] + m] = rows + row0
+        xyz[fill[c]:fill[c] + m] = pts[rows]
+        fill[c] += m
+
+
 def build_index(src: Source, target: int, scratch: str, side: float | None = None
                 ) -> TileIndex:
     """Tiles of about ``target`` core points: the grid side is chosen on a
@@ -213,18 +303,7 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
         side = max(ext, 1e-300) * (1 + 1e-9)
     else:
         step = max(1, n // 200_000)
-        sample = np.asarray(src.xyz[::step])
-        lo_s, hi_s = math.log(ext / 2000.0), math.log(ext * 1.0001)
-        for _ in range(40):  # bisection on log(side): mean occupancy ≈ target
-            mid = 0.5 * (lo_s + hi_s)
-            side = math.exp(mid)
-            shape, sides = _grid(src, side)
-            occupied = len(np.unique(_cell_ids(sample, src.lo, sides, shape)))
-            if n / occupied > target:
-                hi_s = mid
-            else:
-                lo_s = mid
-        side = math.exp(lo_s)  # the side of the pair whose tiles hold at most target
+        side = _fit_side(src, np.ascontiguousarray(src.xyz[::step]), n, target)
     shape, sides = _grid(src, side, fit)
     ncell = int(np.prod(shape))
     counts = np.zeros(ncell, dtype=np.int64)
@@ -239,16 +318,8 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
                                     dtype=np.float64, shape=(n, 3))
     fill = start[:-1].copy()
     for s in range(0, n, CHUNK):
-        pts = np.asarray(src.xyz[s:s + CHUNK])
-        ids = _cell_ids(pts, src.lo, sides, shape)
-        srt = np.argsort(ids, kind="stable")
-        ids_s, pts = ids[srt], pts[srt]
-        uniq, first, cnt = np.unique(ids_s, return_index=True, return_counts=True)
-        rows = srt + s
-        for c, f, m in zip(uniq, first, cnt):
-            order[fill[c]:fill[c] + m] = rows[f:f + m]
-            xyz[fill[c]:fill[c] + m] = pts[f:f + m]
-            fill[c] += m
+        pts = np.asarray(src.xyz[s:s + CHUNK], dtype=np.float64)
+        _fill_cells(_cell_ids(pts, src.lo, sides, shape), pts, s, fill, order, xyz)
     cells = np.flatnonzero(counts)
     coords = np.array(np.unravel_index(cells, shape)).T
     return TileIndex(src.lo.copy(), float(side), sides, shape, order, start, cells, coords,

@@ -399,6 +399,34 @@ def test_grid_cells_fill_the_box_without_slivers(tmp_path):
     assert np.allclose(hi[:2], pts.max(axis=0)[:2])  # the last cell ends at the box
 
 
+def test_fill_cells_kernel_equals_numpy(monkeypatch):
+    # two chunks filled in turn into one counting sort: rows grouped by cell,
+    # in input order within a cell, positions carried along
+    from pcprep.filters import _kernels
+
+    g = np.random.default_rng(4)
+    ids = g.integers(0, 9, 3000) * 3  # every third cell empty
+    pts = g.normal(size=(3000, 3))
+
+    def fill_both():
+        start = np.concatenate([[0], np.cumsum(np.bincount(ids, minlength=27))])
+        fill, order, xyz = start[:-1].copy(), np.full(3000, -1), np.full((3000, 3), np.nan)
+        for s in (0, 1700):
+            e = 1700 if s == 0 else 3000
+            tiles._fill_cells(ids[s:e], pts[s:e], s, fill, order, xyz)
+        return order, xyz, fill, start
+
+    got = fill_both()
+    monkeypatch.setattr(_kernels, "ENABLED", False)
+    ref = fill_both()
+    assert _kernels.HAVE_NUMBA
+    for a, b in zip(got, ref):
+        assert np.array_equal(a, b)
+    order, xyz, fill, start = ref
+    assert np.array_equal(order, np.argsort(ids, kind="stable"))
+    assert np.array_equal(xyz, pts[order]) and np.array_equal(fill, start[1:])
+
+
 def test_cell_ids_kernel_equals_numpy(monkeypatch):
     # rows on cell faces, on the box's far faces and outside it (clipped),
     # on a grid whose sides are not powers of two
