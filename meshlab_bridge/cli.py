@@ -313,12 +313,14 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     scratch = tempfile.mkdtemp(prefix="pcprep-tiles-")
     try:
         n = stream.point_count(src)
-        source = tiles.ingest(stream.position_chunks(src), n, scratch)
-        log.info("%s: %d points from %s (tiled)", spec.command, n, src)
-        res = tiles.run_tiled(spec.name, source=source, params=params, tiles=args.tiles,
-                              workers=args.workers, scheduler=args.scheduler,
-                              memory_budget=args.memory_budget, scratch=scratch,
-                              worker_io={"on": True, "off": False}.get(args.worker_io))
+        # the cluster before the ingest: its workers load their modules meanwhile
+        with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
+                               memory_budget=args.memory_budget) as client:
+            source = tiles.ingest(stream.position_chunks(src), n, scratch)
+            log.info("%s: %d points from %s (tiled)", spec.command, n, src)
+            res = tiles.run_tiled(spec.name, source=source, params=params, tiles=args.tiles,
+                                  client=client, scratch=scratch,
+                                  worker_io={"on": True, "off": False}.get(args.worker_io))
         written = stream.write_streamed(spec, src, dst, res.fields)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
                  written, dst, res.stats["tiles"], res.stats["halo_max"])

@@ -567,3 +567,24 @@ def test_blockwise_reads_and_writes_of_stored_arrays(tmp_path, monkeypatch):
     assert np.array_equal(np.delete(back, idx, axis=0), np.delete(np.asarray(a), idx, axis=0))
     assert np.array_equal(backc[:, idx], cols)
     assert not np.delete(backc, idx, axis=1).any()
+
+
+def _warmed() -> bool:
+    import sys
+
+    kernels = sys.modules.get("pcprep.filters._kernels")
+    return ("pcprep.filters.simplify" in sys.modules and kernels is not None
+            and (not kernels.ENABLED or bool(kernels.cell_ids.signatures)))
+
+
+def test_a_new_cluster_warms_its_workers_before_any_task():
+    # the workers of a cluster dask_client starts import the tile tasks' modules
+    # and load the compiled kernels on their own, with no task run on them
+    import time
+
+    with tiles.dask_client(workers=1) as c:
+        deadline = time.monotonic() + 120
+        while not all(c.run(_warmed).values()) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert all(c.run(_warmed).values())
+        assert not c.run(lambda dask_worker: len(dask_worker.data)).popitem()[1]
