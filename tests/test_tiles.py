@@ -577,14 +577,32 @@ def _warmed() -> bool:
             and (not kernels.ENABLED or bool(kernels.cell_ids.signatures)))
 
 
-def test_a_new_cluster_warms_its_workers_before_any_task():
+def _profiler_on() -> bool:
+    import dask
+
+    return dask.config.get("distributed.worker.profile.enabled")
+
+
+def test_a_new_cluster_warms_its_workers_before_any_task(monkeypatch):
     # the workers of a cluster dask_client starts import the tile tasks' modules
-    # and load the compiled kernels on their own, with no task run on them
+    # and load the compiled kernels on their own, with no task run on them; they
+    # run without Dask's statistical profiler unless the user's config asks for it
     import time
 
+    monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED", raising=False)
     with tiles.dask_client(workers=1) as c:
+        assert not any(c.run(_profiler_on).values())
         deadline = time.monotonic() + 120
         while not all(c.run(_warmed).values()) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert all(c.run(_warmed).values())
         assert not c.run(lambda dask_worker: len(dask_worker.data)).popitem()[1]
+
+
+def test_quiet_monitors_leave_what_the_user_configured(monkeypatch):
+    monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED", raising=False)
+    assert tiles._quiet_monitors()["distributed.worker.profile.enabled"] is False
+    monkeypatch.setenv("DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED", "True")
+    quiet = tiles._quiet_monitors()
+    assert "distributed.worker.profile.enabled" not in quiet
+    assert set(quiet) == set(tiles.QUIET_MONITORS) - {"distributed.worker.profile.enabled"}
