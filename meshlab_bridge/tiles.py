@@ -393,9 +393,10 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     nw = workers or os.cpu_count() or 1
     for name in ("distributed", "tornado"):  # their lifecycle chatter is not ours to print
         logging.getLogger(name).setLevel(logging.WARNING)
-    with dask.config.set(_quiet_monitors()), LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
-                      memory_limit=memory_budget or "auto", dashboard_address=":0",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
+    with dask.config.set(_quiet_monitors()), \
+            LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
+                         memory_limit=memory_budget or "auto", dashboard_address=":0",
+                         silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
         log.info("dask: %d local worker(s); dashboard %s", nw, c.dashboard_link)
         _warm_workers(c)
         yield c
@@ -424,26 +425,12 @@ def _quiet_monitors() -> dict:
 
 
 def _warm_workers(client) -> None:
-    """Have every worker import the tile tasks' modules and make numba's first
-    call (together about 0.8 s per process) now, on a thread of its own, while
-    the driver reads the input and builds the index, instead of in its first
-    task.  Nothing waits for it: a task that comes sooner finds the imports
-    under way and waits on Python's and numba's own locks."""
-    client.run(_start_warming, wait=False)
+    """Have every worker load the tile tasks' modules and make numba's first
+    call (about 0.8 s per process) now, while the driver reads the input and
+    builds the index, instead of in its first task (``warmup``)."""
+    from . import warmup
 
-
-async def _start_warming() -> None:  # a coroutine: Dask runs only those without waiting
-    threading.Thread(target=_warm, name="pcprep-warm", daemon=True).start()
-
-
-def _warm() -> None:
-    """The imports the tile tasks make, and numba's first call."""
-    import importlib
-
-    for mod in ("outliers", "denoise", "saliency", "multiscale", "sharp", "holes",
-                "simplify", "sparse"):
-        importlib.import_module(f"pcprep.filters.{mod}")
-    _load_index_kernels()
+    client.run(warmup.start, wait=False)
 
 
 def tile_target(tiles, client, n: int) -> int:

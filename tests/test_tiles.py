@@ -399,6 +399,27 @@ def test_grid_cells_fill_the_box_without_slivers(tmp_path):
     assert np.allclose(hi[:2], pts.max(axis=0)[:2])  # the last cell ends at the box
 
 
+@pytest.mark.parametrize("shape", ["slab", "ball", "box"])
+def test_side_search_finds_the_largest_side_that_fits(tmp_path, shape):
+    # the breakpoint bisection against an exhaustive scan of every grid shape a
+    # fitted grid can take (one side inside each interval between breakpoints)
+    g = np.random.default_rng(7)
+    n = 4000
+    pts = {"slab": np.c_[g.uniform(0, 1, (n, 2)) * [30, 17], g.normal(0, 0.05, n)],
+           "ball": g.normal(size=(n, 3)) / 3,
+           "box": g.uniform(0, 1, (n, 3)) * [5, 2, 9]}[shape] + [1e4, -7, 3]
+    src = tiles.source_from_array(pts, str(tmp_path))
+    for target in (150, 700, 1900):
+        side = tiles._fit_side(src, pts, n, target)
+        ext = np.maximum(src.hi - src.lo, 1e-300)
+        cuts = np.unique((ext[:, None] / np.arange(1, tiles._MOST_CELLS + 1)).ravel())
+        cuts = cuts[cuts >= ext.max() / tiles._MOST_CELLS]
+        fits = [s for s in np.sqrt(cuts[:-1] * cuts[1:])
+                if n / len(np.unique(tiles._cell_ids(pts, src.lo, *tiles._grid(src, s)[::-1])))
+                <= target]
+        assert tiles._grid(src, side)[0] == tiles._grid(src, max(fits))[0]
+
+
 def test_fill_cells_kernel_equals_numpy(monkeypatch):
     # two chunks filled in turn into one counting sort: rows grouped by cell,
     # in input order within a cell, positions carried along
