@@ -313,7 +313,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     scratch = tempfile.mkdtemp(prefix="pcprep-tiles-")
     try:
         n = stream.point_count(src)
-        # the cluster before the ingest: its workers load their modules meanwhile
+        # the cluster before the ingest: an attached one's workers warm up meanwhile
         with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
                                memory_budget=args.memory_budget) as client:
             source = tiles.ingest(stream.position_chunks(src), n, scratch)

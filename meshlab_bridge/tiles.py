@@ -398,7 +398,6 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
                          memory_limit=memory_budget or "auto", dashboard_address=":0",
                          silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
         log.info("dask: %d local worker(s); dashboard %s", nw, c.dashboard_link)
-        _warm_workers(c)
         yield c
 
 
@@ -425,9 +424,12 @@ def _quiet_monitors() -> dict:
 
 
 def _warm_workers(client) -> None:
-    """Have every worker load the tile tasks' modules and make numba's first
-    call (about 0.8 s per process) now, while the driver reads the input and
-    builds the index, instead of in its first task (``warmup``)."""
+    """Have every worker of a cluster attached by address load the tile tasks'
+    modules and make numba's first call (about 0.8 s per process) now, while
+    the driver reads the input and builds the index, instead of in its first
+    task (``warmup``).  Not on the local clusters ``dask_client`` starts: their
+    workers share the driver's cores, and there the warm-up slowed the ingest
+    by more than it saved (docs/decisions/scale.md, twelfth round)."""
     from . import warmup
 
     client.run(warmup.start, wait=False)

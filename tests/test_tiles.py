@@ -604,15 +604,19 @@ def _profiler_on() -> bool:
     return dask.config.get("distributed.worker.profile.enabled")
 
 
-def test_a_new_cluster_warms_its_workers_before_any_task(monkeypatch):
-    # the workers of a cluster dask_client starts import the tile tasks' modules
-    # and load the compiled kernels on their own, with no task run on them; they
-    # run without Dask's statistical profiler unless the user's config asks for it
+def test_a_new_cluster_runs_quiet_and_an_attached_one_warms_its_workers(monkeypatch):
+    # the workers of a cluster dask_client starts run without Dask's statistical
+    # profiler unless the user's config asks for it; those of a cluster it
+    # attaches to import the tile tasks' modules and load the compiled kernels
+    # on their own, with no task run on them
     import time
 
     monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED", raising=False)
     with tiles.dask_client(workers=1) as c:
         assert not any(c.run(_profiler_on).values())
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster, \
+            tiles.dask_client(scheduler=cluster.scheduler_address) as c:
         deadline = time.monotonic() + 120
         while not all(c.run(_warmed).values()) and time.monotonic() < deadline:
             time.sleep(0.2)
