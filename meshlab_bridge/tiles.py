@@ -236,9 +236,8 @@ def _fit_side(src: Source, sample: np.ndarray, n: int, target: int) -> float:
     A fitted grid depends on the side only through its shape, ⌈ext_a / side⌉
     per axis, which changes only where the side crosses ext_a / k for an axis
     a and a count k: the search is a bisection over one side inside each
-    interval between those points (occupancy grows as the side shrinks), about
-    13 sample counts where a bisection over the side itself takes tens to
-    settle on the same grid."""
+    interval between those points (occupancy grows as the side shrinks), so
+    about 13 counts of the sample settle the grid exactly."""
     ext_all = np.maximum(src.hi - src.lo, 1e-300)
     finest = float(ext_all.max()) / _MOST_CELLS
     k = np.arange(1, _MOST_CELLS + 1)
@@ -258,8 +257,8 @@ def _fit_side(src: Source, sample: np.ndarray, n: int, target: int) -> float:
 
 def _occupied(ids: np.ndarray, ncell: int) -> int:
     """How many distinct cells ``ids`` holds: by marking a byte per cell when
-    the grid is at most 16 bytes per id, else by sorting (both several times
-    faster than ``np.unique``'s hashing on fine grids)."""
+    the grid is at most 16 bytes per id, else by sorting (``np.unique`` hashes,
+    several times slower on fine grids)."""
     if ncell <= 16 * len(ids):
         seen = np.zeros(ncell, dtype=bool)
         seen[ids] = True
