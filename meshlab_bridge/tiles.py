@@ -44,6 +44,7 @@ row is counted exactly once (checked).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import mmap
@@ -127,18 +128,13 @@ def ingest(chunks, n: int, scratch: str) -> Source:
     return Source(xyz, lo, hi)
 
 
-_preloading: list = []
-
-
+@functools.cache
 def _preload_index_kernels() -> None:
     """Start loading ``build_index``'s compiled kernels on a thread, once per
     process: numba's first call in a process costs about 0.25 s, mostly in
     LLVM with the GIL released, so it overlaps the ingest's decoding instead
     of adding to the serial part of a run."""
-    if not _preloading:
-        _preloading.append(threading.Thread(target=_load_index_kernels,
-                                            name="pcprep-preload", daemon=True))
-        _preloading[0].start()
+    threading.Thread(target=_load_index_kernels, name="pcprep-preload", daemon=True).start()
 
 
 def _load_index_kernels() -> None:

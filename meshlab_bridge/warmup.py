@@ -3,8 +3,10 @@ warmup.py
 ---------
 What a Dask worker loads before its first tile task: pcprep's filter modules
 (NumPy, SciPy and numba come with them, about 0.6 s) and numba's first call
-(LLVM's start, about 0.25 s).  ``tiles.dask_client`` asks every worker to do it
-on a thread of its own while the driver reads the input.
+(LLVM's start, about 0.25 s).  ``tiles.dask_client`` asks every worker of a
+cluster it attaches to by address to do it on a thread of its own while the
+driver reads the input (not on the local clusters it starts, whose workers
+share the driver's cores).
 
 This module imports nothing heavy itself: Dask unpickles the coroutine it runs
 in the worker's event loop, and the driver waits for that, so the unpickling
