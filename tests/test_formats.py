@@ -82,6 +82,37 @@ def test_laz_of_several_chunks_written_with_threads_is_the_single_thread_file(tm
     assert np.array_equal(got, np.column_stack([ref.x, ref.y, ref.z]))
 
 
+@pytest.mark.parametrize("fmt", [3, 6, 8])
+def test_streamed_removal_writes_the_records_the_whole_cloud_path_writes(tmp_path, fmt):
+    """A tiled removal copies the kept rows' LAS records as they are; the file
+    must equal, record for record and in its header, the one written from the
+    whole cloud in memory (a chunk with no row kept included)."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get("outliers")
+    src = _random_las(tmp_path / "in.laz", fmt, n=5000, seed=fmt)
+    keep = np.flatnonzero(np.random.default_rng(1).random(5000) < 0.7)
+    keep = keep[(keep < 1000) | (keep >= 2000)]  # rows 1000-1999: one chunk, none kept
+    whole = tmp_path / "whole.laz"
+    formats.write_cloud(result_cloud(spec, formats.read_cloud(src),
+                                     SimpleNamespace(**{spec.index_field: keep})), whole)
+    streamed = tmp_path / "streamed.laz"
+    assert stream.write_streamed(spec, src, streamed, {spec.index_field: keep},
+                                 size=1000) == len(keep)
+    a, b = laspy.read(str(whole)), laspy.read(str(streamed))
+    assert len(b.points) == len(keep) > 0
+    assert a.points.array.tobytes() == b.points.array.tobytes()
+    for field in ("point_count", "mins", "maxs", "scales", "offsets", "version"):
+        assert np.array_equal(getattr(a.header, field), getattr(b.header, field)), field
+    assert a.header.point_format.id == b.header.point_format.id
+    assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
+
+
 def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
     src = _random_las(tmp_path / "scan.laz", 6, n=3000)
     out = tmp_path / "holes.laz"
