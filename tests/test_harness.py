@@ -242,6 +242,20 @@ def test_single_node_speed_times_every_filter_against_one_knn_pass(tmp_path, mon
     assert json.loads((tmp_path / "speed_scale.json").read_text())["n"] == 4000
 
 
+def test_scale_rows_are_the_median_run_and_the_speedup_the_ratio_of_medians():
+    from pcprep.baselines import bench_scale
+
+    one = [{"wall_s": w, "tag": i} for i, w in enumerate((9.0, 7.0, 8.0))]
+    two = [{"wall_s": w, "tag": i} for i, w in enumerate((4.0, 5.0, 4.5))]
+    m1, m2 = bench_scale._median_run(one), bench_scale._median_run(two)
+    assert (m1["tag"], m1["wall_s"], m1["runs_wall_s"]) == (2, 8.0, [9.0, 7.0, 8.0])
+    assert (m2["tag"], m2["wall_s"]) == (2, 4.5)
+    s = {"speedup_2": m1["wall_s"] / m2["wall_s"],
+         "speedup_2_pairs": [a / b for a, b in zip(m1["runs_wall_s"], m2["runs_wall_s"])]}
+    assert bench_scale._speedup_text(s) == "1.78 (1.40–2.25)"
+    assert bench_scale._speedup_text({"speedup_2": 1.5, "speedup_2_pairs": [1.5]}) == "1.50"
+
+
 def test_scale_projection_is_amdahl_and_the_driver_bound_adds_its_pass_cpu():
     """T(P) = S·(10⁹/n) + (W − S)·(10⁹/n)/P; the driver-bound variant counts
     the driver's CPU seconds in the passes as serial too."""
