@@ -113,6 +113,90 @@ def test_streamed_removal_writes_the_records_the_whole_cloud_path_writes(tmp_pat
     assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
 
 
+def _ply_float32(path, n: int, order: str):
+    """A binary PLY of a noisy unit sphere: float32 positions, 8-bit colours,
+    an intensity and a confidence, in byte order ``order``."""
+    g = np.random.default_rng(n)
+    v = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"),
+                           ("green", "u1"), ("blue", "u1"), ("intensity", "u2"),
+                           ("confidence", "f4")])
+    p = g.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    p += g.normal(scale=0.003, size=(n, 3))
+    for j, c in enumerate("xyz"):
+        v[c] = p[:, j]
+    for c in ("red", "green", "blue"):
+        v[c] = g.integers(0, 256, n)
+    v["intensity"] = g.integers(0, 65535, n)
+    v["confidence"] = g.random(n)
+    PlyData([PlyElement.describe(v, "vertex")], byte_order=order,
+            comments=["scanner 7"]).write(str(path))
+    return path
+
+
+def _result_fields(spec, result) -> dict:
+    names = (spec.points_field, spec.normals_field, spec.mask_field, spec.scalar_field,
+             spec.index_field)
+    return {n: np.asarray(getattr(result, n)) for n in names
+            if n and getattr(result, n, None) is not None}
+
+
+@pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "features", "simplify"])
+@pytest.mark.parametrize("order", ["<", ">", "las"])
+def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
+    """A tiled run writes binary PLY block by block; the file must be the one
+    written from the whole result in memory, byte for byte: every input
+    property in its place and type (float32 positions become float64 where a
+    filter moves them, in every block), results appended, the input's byte
+    order and comments (or a LAS input's dimensions)."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.convert import quality_ramp
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get(name)
+    if order == "las":  # LAS/LAZ in, PLY out: streamed as well
+        src = _random_las(tmp_path / "in.laz", 7, n=2500)
+    else:
+        src = _ply_float32(tmp_path / "in.ply", 2500, order)
+    cloud = formats.read_cloud(src)
+    params = {"ratio": 0.3} if name == "simplify" else {}
+    if name == "outliers":  # some rows to remove
+        params = {"method": "radius", "radius": 1.0}
+    fields = _result_fields(spec, spec.func(cloud.points, **params))
+    out = result_cloud(spec, cloud, SimpleNamespace(**fields))
+    if spec.kind == "scalar":
+        out = out.with_(colors=quality_ramp(out.quality))
+    whole, streamed = tmp_path / "whole.ply", tmp_path / "streamed.ply"
+    formats.write_cloud(out, whole)
+    assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
+    assert streamed.read_bytes() == whole.read_bytes()
+    assert b"end_header" in whole.read_bytes()[:2000]
+
+
+def test_streamed_ply_column_type_is_settled_over_every_block(tmp_path):
+    """Float32 positions that a filter leaves unchanged in one block and moves in
+    another are float64 in the whole file, as when it is written whole."""
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get("denoise")
+    src = _ply_float32(tmp_path / "in.ply", 1000, "<")
+    pts = formats.read_cloud(src).points
+    moved = pts.copy()
+    moved[600:] += 1e-9  # rows 600-999 no longer float32
+    fields = {"points": moved, "normals": np.tile([0.0, 0.0, 1.0], (1000, 1)),
+              "edge_mask": np.zeros(1000, bool)}
+    stream.write_streamed(spec, src, tmp_path / "out.ply", fields, size=500)
+    back = PlyData.read(str(tmp_path / "out.ply"))["vertex"].data
+    assert back.dtype["x"] == np.float64
+    assert np.array_equal(back["x"], moved[:, 0])
+
+
 def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
     src = _random_las(tmp_path / "scan.laz", 6, n=3000)
     out = tmp_path / "holes.laz"

@@ -58,11 +58,20 @@ def read(path: str) -> Cloud:
                 raise PointCloudError(
                     f"cannot read {path!r}: data continues after the {ply['vertex'].count} "
                     "vertices (and other elements) its header declares")
-        vert = ply["vertex"]
-        data = np.array(vert.data)  # plyfile may return a memmap
-        names = list(data.dtype.names)
+        data = np.array(ply["vertex"].data)  # plyfile may return a memmap
     finally:
         f.really_close()
+    cloud = vertex_cloud(data, ply, path)
+    faces = _faces(ply, len(cloud), path)
+    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
+    cloud.meta["ply"]["other_elements"] = others
+    return cloud.with_(faces=faces)
+
+
+def vertex_cloud(data: np.ndarray, ply, path: str) -> Cloud:
+    """A ``Cloud`` of the vertex rows ``data`` (all of ``ply``'s vertices or a
+    block of them), with the header facts that writing restores; no faces."""
+    names = list(data.dtype.names)
     for c in "xyz":
         if c not in names:
             raise PointCloudError(f"cannot read {path!r}: vertices have no {c!r} property")
@@ -88,14 +97,12 @@ def read(path: str) -> Cloud:
             used.add(q)
             break
     attrs = {n: np.ascontiguousarray(data[n]) for n in names if n not in used}
-    faces = _faces(ply, len(pts), path)
-    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
     meta = {"format": ".ply", "ply": {
         "text": bool(ply.text), "byte_order": ply.byte_order,
         "comments": list(ply.comments), "obj_info": list(ply.obj_info),
         "types": {n: data.dtype[n].str for n in names}, "order": names,
-        "other_elements": others, "n_vertices": len(pts)}}
-    return Cloud(pts, normals, colors, quality, faces, attrs, os.path.basename(path), meta)
+        "other_elements": {}, "n_vertices": ply["vertex"].count}}
+    return Cloud(pts, normals, colors, quality, None, attrs, os.path.basename(path), meta)
 
 
 def _unit_color(col: np.ndarray) -> np.ndarray:
@@ -164,8 +171,35 @@ def _column(values: np.ndarray, original: str | None) -> np.ndarray:
 
 
 def write(cloud: Cloud, path: str) -> None:
-    from plyfile import PlyData, PlyElement
+    from plyfile import PlyElement
 
+    cols = vertex_columns(cloud)
+    vertex = vertex_rows(cols, {n: v.dtype for n, v in cols.items()})
+    elements = [PlyElement.describe(vertex, "vertex")]
+    if cloud.faces is not None and len(cloud.faces):
+        face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
+        face["vertex_indices"] = cloud.faces
+        elements.append(PlyElement.describe(face, "face"))
+    info = cloud.meta.get("ply", {})
+    if len(cloud) == info.get("n_vertices", -1):  # edges etc. index the original rows
+        elements += list(info.get("other_elements", {}).values())
+    _ply_data(elements, info).write(path)
+
+
+def _ply_data(elements, info: dict):
+    from plyfile import PlyData
+
+    return PlyData(elements, text=info.get("text", False),
+                   byte_order=info.get("byte_order", "<") if not info.get("text") else "=",
+                   comments=info.get("comments", []), obj_info=info.get("obj_info", []))
+
+
+def vertex_columns(cloud: Cloud, *, alpha: bool = False) -> dict[str, np.ndarray]:
+    """The vertex properties ``cloud`` is written with, by name in file order:
+    the input's properties in their order and types where the values still fit
+    them exactly, new ones after them.  An alpha the input did not have is
+    written only where some colour is not opaque, or where ``alpha`` asks
+    (a streamed write decides it over every block first)."""
     info = cloud.meta.get("ply", {})
     types = info.get("types", {})
     cols: dict[str, np.ndarray] = {}
@@ -177,7 +211,8 @@ def write(cloud: Cloud, path: str) -> None:
             cols[c] = _column(cloud.normals[:, j], types.get(c))
     if cloud.colors is not None:
         for j, c in enumerate(_COLORS):
-            if c == "alpha" and c not in types and np.all(cloud.colors[:, 3] == 1.0):
+            if (c == "alpha" and c not in types and not alpha
+                    and np.all(cloud.colors[:, 3] == 1.0)):
                 continue
             t = np.dtype(types.get(c, "u1"))
             v = cloud.colors[:, j]
@@ -195,17 +230,45 @@ def write(cloud: Cloud, path: str) -> None:
                 cols[f"{name}_{k}"] = _column(arr[:, k], types.get(f"{name}_{k}"))
     order = [n for n in info.get("order", []) if n in cols] + \
         [n for n in cols if n not in info.get("order", [])]
-    vertex = np.empty(len(cloud), dtype=[(n, cols[n].dtype.str) for n in order])
-    for n in order:
-        vertex[n] = cols[n]
-    elements = [PlyElement.describe(vertex, "vertex")]
-    if cloud.faces is not None and len(cloud.faces):
-        face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
-        face["vertex_indices"] = cloud.faces
-        elements.append(PlyElement.describe(face, "face"))
-    if len(cloud) == info.get("n_vertices", -1):  # edges etc. index the original rows
-        elements += list(info.get("other_elements", {}).values())
-    ply = PlyData(elements, text=info.get("text", False),
-                  byte_order=info.get("byte_order", "<") if not info.get("text") else "=",
-                  comments=info.get("comments", []), obj_info=info.get("obj_info", []))
-    ply.write(path)
+    return {n: cols[n] for n in order}
+
+
+def vertex_rows(cols: dict[str, np.ndarray], types: dict) -> np.ndarray:
+    """The structured vertex array of ``cols``, each column of type ``types[name]``."""
+    vertex = np.empty(len(next(iter(cols.values()))),
+                      dtype=[(n, np.dtype(types[n]).str) for n in cols])
+    for n, v in cols.items():
+        vertex[n] = v
+    return vertex
+
+
+def wider_type(name: str, a: np.dtype, b: np.dtype, info: dict) -> np.dtype:
+    """The type of a column written in blocks whose values gave types ``a`` and
+    ``b``: a block keeps the input's type only where its values fit it, so
+    where the blocks differ the whole column does not fit, and the other type
+    is the one writing it whole gives."""
+    if a == b:
+        return a
+    original = info.get("types", {}).get(name)
+    if original is not None and np.dtype(original) in (a, b):
+        return b if a == np.dtype(original) else a
+    return np.result_type(a, b)
+
+
+def header(types: dict, count: int, info: dict) -> bytes:
+    """The header of a binary PLY of ``count`` vertices with the properties
+    ``types`` (name → type, in file order), the input's comments and byte order,
+    through plyfile; the rows follow it as ``vertex_rows(...).tobytes()`` in
+    that byte order (``row_type``)."""
+    from plyfile import PlyElement
+
+    shape = np.broadcast_to(np.zeros(1, dtype=list(types.items())), (count,))
+    ply = _ply_data([PlyElement.describe(shape, "vertex")], dict(info, text=False))
+    return ply.header.encode("ascii") + b"\n"
+
+
+def row_type(types: dict, info: dict) -> np.dtype:
+    """The on-disk row type of ``types`` in the byte order ``header`` writes."""
+    order = info.get("byte_order", "<")
+    order = "<" if order == "=" else order
+    return np.dtype([(n, np.dtype(t).newbyteorder(order)) for n, t in types.items()])

@@ -8,10 +8,13 @@ file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
 plyfile, ``.npy`` memory-mapped; the other formats are read whole (they are text
 or carry no index to stream by).  ``write_streamed`` writes a filter's per-row
 results (arrays or memory maps, in input order) with every input attribute
-kept, chunk by chunk for LAS/LAZ in and out (laspy's writer; the input's header,
-new results as extra dimensions, rows in input order; a removal copies the
-kept rows' records as they are), and through
-``read_cloud``/``write_cloud`` otherwise.  Both write atomically.
+kept, block by block where the input is LAS/LAZ or a binary PLY of vertices
+alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the input's header, new results
+as extra dimensions; a removal copies the kept rows' records as they are) and
+to binary PLY (plyfile's header, then the rows; the same bytes ``ply.write``
+gives the whole result).  Other pairs go through ``read_cloud``/``write_cloud``
+with the cloud in memory (a LAS header's scale and offset, written from another
+format, need the whole cloud's extent).  Every write is atomic.
 """
 
 from __future__ import annotations
@@ -101,60 +104,126 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal).
     Returns the number of rows written."""
-    from ..apply import result_cloud
-    from ..convert import quality_ramp
-
     src, dst = os.fspath(src), os.fspath(dst)
-    ramp = spec.kind == "scalar"
-    if _ext(src) in _STREAMED and _ext(dst) in _STREAMED:
+    keep = None
+    if spec.kind in ("remove", "new_layer"):
+        keep = np.zeros(point_count(src), dtype=bool)
+        keep[np.asarray(fields[spec.index_field])] = True
+    blocks = _block_reader(src)
+    if blocks is not None and _ext(dst) in _STREAMED and _ext(src) in _STREAMED:
+        if keep is not None and not spec.scalar_field:
+            return _write_kept_records(src, dst, keep, size)
+        return _write_las(_results(spec, blocks(size), fields, keep), dst)
+    if blocks is not None and _ext(dst) == ".ply":
+        return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
+    # formats without a chunked reader or writer: the cloud in memory, written whole
+    from . import write_cloud
+
+    cloud = read_cloud(src)
+    out = next(_results(spec, iter([(0, cloud)]), fields, keep))
+    write_cloud(out, dst)
+    return len(out)
+
+
+def _block_reader(src: str):
+    """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
+    every attribute kept, for LAS/LAZ and binary PLY holding vertices alone;
+    None for the formats read whole."""
+    ext = _ext(src)
+    if ext in _STREAMED:
         import laspy
 
         from . import las
 
-        keep = None
-        if spec.kind in ("remove", "new_layer"):
-            keep = np.zeros(point_count(src), dtype=bool)
-            keep[np.asarray(fields[spec.index_field])] = True
-            if not spec.scalar_field:
-                return _write_kept_records(src, dst, keep, size)
-        written = 0
-        with _temporary(dst) as tmp, laspy.open(src, laz_backend=laz_backend()) as reader:
-            writer = header = None
-            start = 0
-            try:
+        def las_blocks(size):
+            with laspy.open(src, laz_backend=laz_backend()) as reader:
+                start = 0
                 for pts in reader.chunk_iterator(size):
-                    m = len(pts)
-                    chunk = las.to_cloud(laspy.LasData(header=reader.header, points=pts), src)
-                    out = result_cloud(spec, chunk, _chunk_result(spec, fields, start, m, keep))
-                    if ramp and out.quality is not None:
-                        out = out.with_(colors=quality_ramp(out.quality))
-                    if writer is None:
-                        header, _ = las.output_header(out, dst)
-                        writer = laspy.open(tmp, mode="w", header=header,
-                                            laz_backend=laz_backend(),
-                                            do_compress=dst.lower().endswith(".laz"))
-                    rec = las.record(out, header, las.output_columns(out, header), dst)
-                    writer.write_points(rec.points)
-                    written += len(out)
-                    start += m
-            finally:
-                if writer is not None:
-                    writer.close()
-        return written
-    # formats without a chunked writer: the cloud in memory, written whole
-    from . import write_cloud
+                    yield start, las.to_cloud(laspy.LasData(header=reader.header,
+                                                            points=pts), src)
+                    start += len(pts)
 
-    cloud = read_cloud(src)
-    n = len(cloud)
-    keep = None
-    if spec.kind in ("remove", "new_layer"):
-        keep = np.zeros(n, dtype=bool)
-        keep[np.asarray(fields[spec.index_field])] = True
-    out = result_cloud(spec, cloud, _chunk_result(spec, fields, 0, n, keep))
-    if ramp and out.quality is not None:
-        out = out.with_(colors=quality_ramp(out.quality))
-    write_cloud(out, dst)
-    return len(out)
+        return las_blocks
+    ply_data = _ply_mmap(src) if ext == ".ply" else None
+    if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
+        return None  # ASCII, or faces and other elements that index every vertex
+    from . import ply
+
+    def ply_blocks(size):
+        v = ply_data["vertex"]
+        for s in range(0, v.count, size):
+            yield s, ply.vertex_cloud(np.array(v.data[s:s + size]), ply_data, src)
+
+    return ply_blocks
+
+
+def _results(spec, blocks, fields: dict, keep):
+    """The output cloud of each block: the filter's result on its rows (with
+    MeshLab's quality ramp as colours for a scalar)."""
+    from ..apply import result_cloud
+    from ..convert import quality_ramp
+
+    for start, block in blocks:
+        out = result_cloud(spec, block, _chunk_result(spec, fields, start, len(block), keep))
+        if spec.kind == "scalar" and out.quality is not None:
+            out = out.with_(colors=quality_ramp(out.quality))
+        yield out
+
+
+def _write_las(outputs, dst: str) -> int:
+    """LAS/LAZ block by block under the input's header (laspy's writer)."""
+    import laspy
+
+    from . import las
+
+    written = 0
+    with _temporary(dst) as tmp:
+        writer = header = None
+        try:
+            for out in outputs:
+                if writer is None:
+                    header, _ = las.output_header(out, dst)
+                    writer = laspy.open(tmp, mode="w", header=header,
+                                        laz_backend=laz_backend(),
+                                        do_compress=dst.lower().endswith(".laz"))
+                rec = las.record(out, header, las.output_columns(out, header), dst)
+                writer.write_points(rec.points)
+                written += len(out)
+        finally:
+            if writer is not None:
+                writer.close()
+    return written
+
+
+def _write_ply(outputs, dst: str) -> int:
+    """Binary PLY block by block, the same file ``ply.write`` makes of the whole
+    result.  A column keeps the input's type only where every row's value
+    fits it, so a first pass over the blocks settles each column's type (and
+    whether an alpha is written) and the row count for the header; the second
+    writes the rows.  ``outputs()`` gives the blocks' output clouds afresh."""
+    from . import ply
+
+    types: dict = {}
+    alpha, count, info = False, 0, {}
+    for out in outputs():
+        info = out.meta.get("ply", {})
+        cols = ply.vertex_columns(out)
+        alpha = alpha or "alpha" in cols
+        for n, v in cols.items():
+            types[n] = ply.wider_type(n, types[n], v.dtype, info) if n in types else v.dtype
+        count += len(out)
+    written = 0
+    with _temporary(dst) as tmp, open(tmp, "wb") as f:
+        rows = None
+        for out in outputs():
+            cols = ply.vertex_columns(out, alpha=alpha)
+            if rows is None:
+                layout = {n: types[n] for n in cols}
+                f.write(ply.header(layout, count, info))
+                rows = ply.row_type(layout, info)
+            f.write(ply.vertex_rows(cols, {n: rows[n] for n in cols}).tobytes())
+            written += len(out)
+    return written
 
 
 def _write_kept_records(src: str, dst: str, keep: np.ndarray, size: int) -> int:
