@@ -107,15 +107,21 @@ class Source:
 
 def ingest(chunks, n: int, scratch: str) -> Source:
     """Write streamed ``(start, xyz)`` chunks into ``scratch/xyz.npy``; refuse
-    non-finite rows (naming the first ones).  The tile index's compiled
+    non-finite rows (naming the first ones) and chunks that do not cover rows
+    0…n−1 once each, in order (a count that does not match the data).  The tile index's compiled
     kernels load meanwhile (``_preload_index_kernels``)."""
     _preload_index_kernels()
     xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz.npy"), mode="w+",
                                     dtype=np.float64, shape=(n, 3))
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
+    got = 0
     for start, block in chunks:
         block = np.asarray(block, dtype=np.float64)
+        if start != got or start + len(block) > n:
+            raise PointCloudError(f"the input's rows do not match its point count {n}: "
+                                  f"rows {start}–{start + len(block) - 1} after {got} rows")
+        got += len(block)
         if not np.isfinite(block).all():
             bad = ~np.isfinite(block).all(axis=1)
             rows = (np.flatnonzero(bad)[:10] + start).tolist()
@@ -124,6 +130,9 @@ def ingest(chunks, n: int, scratch: str) -> Source:
         if len(block):  # column by column: an axis-0 reduction of (m, 3) is 7× slower
             lo = np.minimum(lo, [block[:, a].min() for a in range(3)])
             hi = np.maximum(hi, [block[:, a].max() for a in range(3)])
+    if got != n:
+        raise PointCloudError(f"the input holds {got} rows, not the {n} its point count "
+                              "says")
     xyz.flush()
     return Source(xyz, lo, hi)
 

@@ -11,7 +11,7 @@ import pytest
 
 distributed = pytest.importorskip("dask.distributed", reason="needs pcprep[scale]")
 
-from pcprep.filters._validation import InvalidParameterError  # noqa: E402
+from pcprep.filters._validation import InvalidParameterError, PointCloudError  # noqa: E402
 from pcprep.filters.denoise import denoise_l1_tv  # noqa: E402
 from pcprep.filters.outliers import remove_outliers  # noqa: E402
 from pcprep.filters.saliency import saliency_sparse_mdl  # noqa: E402
@@ -243,6 +243,43 @@ def test_cli_refuses_bad_tiles(capsys):
     with pytest.raises(SystemExit):
         main(["denoise", "a.ply", "b.ply", "--tiles", "0"])
     assert "positive count" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("cut", ["record", "inside"])
+def test_cli_tiled_refuses_a_truncated_las(tmp_path, capsys, cut):
+    """A LAS file cut short (at a record's end, where laspy's chunks simply
+    stop, or inside one) is refused with the counts, and nothing is written;
+    the ingest refuses chunks that do not cover the declared rows."""
+    import laspy
+
+    from pcprep.meshlab_bridge.cli import main
+
+    pts = _surface(5000, seed=8, outliers=0)
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.offsets, header.scales = np.floor(pts.min(axis=0)), [1e-4] * 3
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts.T
+    whole = tmp_path / "whole.las"
+    las.write(whole)
+    size = header.offset_to_point_data + 3000 * header.point_format.size
+    src = tmp_path / "cut.las"
+    src.write_bytes(whole.read_bytes()[:size + (0 if cut == "record" else 7)])
+    dst = tmp_path / "out.las"
+    assert main(["outliers", str(src), str(dst), "--tiles", "1000", "--workers", "1",
+                 "--quiet"]) != 0
+    err = capsys.readouterr().err
+    assert "declares 5000 points, the file holds 3000" in err or "truncated" in err, err
+    assert not dst.exists()
+    from pcprep.meshlab_bridge.formats import stream
+
+    with pytest.raises(PointCloudError, match="truncated|declares 5000 points, the file "
+                       "holds 3000"):
+        for _ in stream.position_chunks(src, size=1000):  # blocks that end on records
+            pass
+    with pytest.raises(PointCloudError, match="holds 3 rows, not the 4"):
+        tiles.ingest(iter([(0, pts[:3])]), 4, str(tmp_path))
+    with pytest.raises(PointCloudError, match="do not match its point count 4"):
+        tiles.ingest(iter([(0, pts[:3]), (3, pts[:3])]), 4, str(tmp_path))
 
 
 def _jittered_grid_with_hole(side=160, seed=6):

@@ -70,15 +70,20 @@ def position_chunks(path, size: int = CHUNK):
 
         try:
             with laspy.open(path, laz_backend=laz_backend()) as f:
-                start = 0
+                start, declared = 0, int(f.header.point_count)
                 for pts in f.chunk_iterator(size):
                     xyz = np.column_stack([np.asarray(pts.x, np.float64),
                                            np.asarray(pts.y, np.float64),
                                            np.asarray(pts.z, np.float64)])
                     yield start, xyz
                     start += len(xyz)
-        except (laspy.errors.LaspyException, RuntimeError) as exc:
-            raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
+        except (laspy.errors.LaspyException, RuntimeError, ValueError) as exc:
+            # lazrs: RuntimeError; a LAS cut inside a record: ValueError
+            raise PointCloudError(f"cannot read {path!r}: {exc} (truncated or damaged "
+                                  "file?)") from exc
+        if start != declared:  # laspy stops quietly where a LAS file ends
+            raise PointCloudError(f"cannot read {path!r}: the header declares {declared} "
+                                  f"points, the file holds {start}")
         return
     if ext == ".npy":
         arr = np.load(path, mmap_mode="r")
