@@ -197,6 +197,35 @@ def test_streamed_ply_column_type_is_settled_over_every_block(tmp_path):
     assert np.array_equal(back["x"], moved[:, 0])
 
 
+@pytest.mark.parametrize("damage", ["ply cut", "ply cut inside a row", "ply too long",
+                                    "npy cut", "npy of objects"])
+def test_streamed_reading_refuses_damaged_files(tmp_path, damage):
+    """The tiled path's reader (positions memory-mapped) refuses what reading
+    the whole file refuses: rows missing or left over, an array that is not
+    real numbers."""
+    from pcprep.meshlab_bridge.formats import stream
+
+    if damage.startswith("ply"):
+        path = _ply_float32(tmp_path / "a.ply", 1000, "<")
+        data = path.read_bytes()
+        data = {"ply cut": data[:-16 * 300], "ply cut inside a row": data[:-5],
+                "ply too long": data + b"\x01" * 100}[damage]
+    else:
+        path = tmp_path / "a.npy"
+        if damage == "npy cut":
+            np.save(path, np.zeros((100, 3)))
+            data = path.read_bytes()[:-48]
+        else:
+            np.save(path, np.array([[1, 2, 3]], dtype=object), allow_pickle=True)
+            data = path.read_bytes()
+    path.write_bytes(data)
+    with pytest.raises(PointCloudError, match="cannot read"):
+        stream.point_count(path)
+    with pytest.raises(PointCloudError, match="cannot read"):
+        for _ in stream.position_chunks(path, size=100):
+            pass
+
+
 def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
     src = _random_las(tmp_path / "scan.laz", 6, n=3000)
     out = tmp_path / "holes.laz"

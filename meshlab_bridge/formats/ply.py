@@ -40,6 +40,19 @@ class _KeepOpen(io.FileIO):
 
 
 def read(path: str) -> Cloud:
+    ply = load(path)
+    cloud = vertex_cloud(np.array(ply["vertex"].data), ply, path)  # from the memmap
+    faces = _faces(ply, len(cloud), path)
+    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
+    cloud.meta["ply"]["other_elements"] = others
+    return cloud.with_(faces=faces)
+
+
+def load(path: str):
+    """plyfile's ``PlyData`` of ``path``, binary elements memory-mapped; refused
+    (``PointCloudError``) where plyfile cannot parse it, where it has no vertex
+    element, and where its rows are not the ones its header declares (ASCII:
+    lines counted; binary: data after the declared elements)."""
     from plyfile import PlyData, PlyParseError
 
     f = _KeepOpen(path, "rb")
@@ -58,14 +71,9 @@ def read(path: str) -> Cloud:
                 raise PointCloudError(
                     f"cannot read {path!r}: data continues after the {ply['vertex'].count} "
                     "vertices (and other elements) its header declares")
-        data = np.array(ply["vertex"].data)  # plyfile may return a memmap
     finally:
         f.really_close()
-    cloud = vertex_cloud(data, ply, path)
-    faces = _faces(ply, len(cloud), path)
-    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
-    cloud.meta["ply"]["other_elements"] = others
-    return cloud.with_(faces=faces)
+    return ply
 
 
 def vertex_cloud(data: np.ndarray, ply, path: str) -> Cloud:

@@ -43,7 +43,7 @@ def point_count(path) -> int:
         with laspy.open(path) as f:
             return int(f.header.point_count)
     if ext == ".npy":
-        return int(np.load(path, mmap_mode="r").shape[0])
+        return len(_npy(path))
     if ext == ".ply":
         ply = _ply_mmap(path)
         if ply is not None:
@@ -51,14 +51,28 @@ def point_count(path) -> int:
     return len(read_cloud(path))
 
 
+def _npy(path: str) -> np.ndarray:
+    """The (n, 3) real array of a ``.npy`` file, memory-mapped."""
+    try:
+        arr = np.load(path, mmap_mode="r")
+    except (ValueError, OSError, EOFError) as exc:  # cut short, pickled objects, …
+        raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.dtype.kind not in "fiu":
+        raise PointCloudError(f"cannot read {path!r}: expected an (n, 3) array of real "
+                              f"numbers, got shape {arr.shape} of {arr.dtype}")
+    return arr
+
+
 def _ply_mmap(path):
-    from plyfile import PlyData
+    """A binary PLY's ``PlyData``, its vertices memory-mapped and its rows
+    checked against the header (``ply.load``); None for ASCII PLY."""
+    from . import ply
 
     with open(path, "rb") as f:
         head = f.read(512)
     if b"format ascii" in head:
         return None
-    return PlyData.read(path, mmap=True)
+    return ply.load(path)
 
 
 def position_chunks(path, size: int = CHUNK):
@@ -86,10 +100,7 @@ def position_chunks(path, size: int = CHUNK):
                                   f"points, the file holds {start}")
         return
     if ext == ".npy":
-        arr = np.load(path, mmap_mode="r")
-        if arr.ndim != 2 or arr.shape[1] != 3:
-            raise PointCloudError(f"cannot read {path!r}: expected an (n, 3) array, "
-                                  f"got shape {arr.shape}")
+        arr = _npy(path)
         for s in range(0, len(arr), size):
             yield s, np.asarray(arr[s:s + size], dtype=np.float64)
         return
