@@ -226,6 +226,53 @@ def test_streamed_reading_refuses_damaged_files(tmp_path, damage):
             pass
 
 
+@pytest.mark.parametrize("normals", [False, True])
+def test_streamed_xyz_reads_and_writes_what_whole_xyz_does(tmp_path, normals):
+    """XYZ in a tiled run is parsed block by block and written block by block:
+    the same positions, the same file, and a bad line in a later block named
+    by its line number as a whole read names it."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    g = np.random.default_rng(4)
+    rows = UTM + g.normal(size=(2000, 3)) * [5.0, 5.0, 0.1]
+    if normals:
+        nrm = g.normal(size=(2000, 3)) * [0.1, 0.1, 1.0]
+        rows = np.c_[rows, nrm / np.linalg.norm(nrm, axis=1)[:, None]]
+    src = tmp_path / "in.xyz"
+    with open(src, "w") as f:
+        f.write("# a scan\n")
+        for j, r in enumerate(rows):
+            f.write(" ".join(f"{v:.17g}" for v in r) + ("  # seam\n" if j == 999 else "\n"))
+            if j == 1500:
+                f.write("\n")
+    whole = formats.read_cloud(src)
+    assert stream.point_count(src) == 2000
+    got = np.concatenate([b for _, b in stream.position_chunks(src, size=300)])
+    assert np.array_equal(got, whole.points)
+    spec = registry.get("outliers")
+    fields = _result_fields(spec, spec.func(whole.points, method="radius", radius=1.0))
+    assert 0 < len(fields["keep_idx"]) < 2000
+    ref = tmp_path / "whole.xyz"
+    formats.write_cloud(result_cloud(spec, whole, SimpleNamespace(**fields)), ref)
+    out = tmp_path / "streamed.xyz"
+    assert stream.write_streamed(spec, src, out, fields, size=300) == len(
+        formats.read_cloud(ref))
+    assert out.read_bytes() == ref.read_bytes()
+    lines = src.read_text().splitlines()
+    lines[1700] = " ".join(["1", "2", "oops"] + ["0"] * (3 if normals else 0))
+    src.write_text("\n".join(lines) + "\n")
+    with pytest.raises(PointCloudError, match="line 1701: row"):
+        formats.read_cloud(src)
+    with pytest.raises(PointCloudError, match="line 1701: row"):
+        for _ in stream.position_chunks(src, size=300):
+            pass
+
+
 def test_las_results_go_to_new_extra_dimensions_and_keep_everything(tmp_path):
     src = _random_las(tmp_path / "scan.laz", 6, n=3000)
     out = tmp_path / "holes.laz"

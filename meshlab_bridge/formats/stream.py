@@ -5,16 +5,18 @@ Streamed reading and writing for tiled runs of clouds larger than memory.
 
 ``position_chunks(path)`` yields ``(start, xyz)`` blocks without loading the
 file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
-plyfile, ``.npy`` memory-mapped; the other formats are read whole (they are text
-or carry no index to stream by).  ``write_streamed`` writes a filter's per-row
-results (arrays or memory maps, in input order) with every input attribute
-kept, block by block where the input is LAS/LAZ or a binary PLY of vertices
-alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the input's header, new results
-as extra dimensions; a removal copies the kept rows' records as they are) and
-to binary PLY (plyfile's header, then the rows; the same bytes ``ply.write``
-gives the whole result).  Other pairs go through ``read_cloud``/``write_cloud``
-with the cloud in memory (a LAS header's scale and offset, written from another
-format, need the whole cloud's extent).  Every write is atomic.
+plyfile, ``.npy`` memory-mapped, XYZ parsed block by block; the other formats
+are read whole (they carry no index to stream by).  ``write_streamed`` writes a
+filter's per-row results (arrays or memory maps, in input order) with every
+input attribute kept, block by block where the input is LAS/LAZ, XYZ or a
+binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
+input's header, new results as extra dimensions; a removal copies the kept
+rows' records as they are), to binary PLY (plyfile's header, then the rows;
+the same bytes ``ply.write`` gives the whole result) and to XYZ.  Other pairs
+go through ``read_cloud``/``write_cloud`` with the cloud in memory (a LAS
+header's scale and offset, written from another format, need the whole
+cloud's extent).  Every write is atomic; a reader refuses what reading the
+whole file refuses.
 """
 
 from __future__ import annotations
@@ -44,6 +46,10 @@ def point_count(path) -> int:
             return int(f.header.point_count)
     if ext == ".npy":
         return len(_npy(path))
+    if ext == ".xyz":
+        from . import text
+
+        return text.xyz_count(path)
     if ext == ".ply":
         ply = _ply_mmap(path)
         if ply is not None:
@@ -104,6 +110,12 @@ def position_chunks(path, size: int = CHUNK):
         for s in range(0, len(arr), size):
             yield s, np.asarray(arr[s:s + size], dtype=np.float64)
         return
+    if ext == ".xyz":
+        from . import text
+
+        for s, data in text.xyz_blocks(path, size):
+            yield s, np.ascontiguousarray(data[:, :3])
+        return
     ply = _ply_mmap(path) if ext == ".ply" else None
     if ply is not None:
         v = ply["vertex"]
@@ -132,6 +144,8 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
         return _write_las(_results(spec, blocks(size), fields, keep), dst)
     if blocks is not None and _ext(dst) == ".ply":
         return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
+    if blocks is not None and _ext(dst) == ".xyz":
+        return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
     # formats without a chunked reader or writer: the cloud in memory, written whole
     from . import write_cloud
 
@@ -143,8 +157,8 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
 
 def _block_reader(src: str):
     """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
-    every attribute kept, for LAS/LAZ and binary PLY holding vertices alone;
-    None for the formats read whole."""
+    every attribute kept, for LAS/LAZ, XYZ and binary PLY holding vertices
+    alone; None for the formats read whole."""
     ext = _ext(src)
     if ext in _STREAMED:
         import laspy
@@ -160,6 +174,11 @@ def _block_reader(src: str):
                     start += len(pts)
 
         return las_blocks
+    if ext == ".xyz":
+        from . import text
+
+        return lambda size: ((s, text.xyz_cloud(data, src))
+                             for s, data in text.xyz_blocks(src, size))
     ply_data = _ply_mmap(src) if ext == ".ply" else None
     if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
         return None  # ASCII, or faces and other elements that index every vertex
@@ -208,6 +227,18 @@ def _write_las(outputs, dst: str) -> int:
         finally:
             if writer is not None:
                 writer.close()
+    return written
+
+
+def _write_xyz(outputs, dst: str) -> int:
+    """XYZ block by block (the lines ``text`` writes for the whole result)."""
+    from . import text
+
+    written = 0
+    with _temporary(dst) as tmp, open(tmp, "wb") as f:
+        for out in outputs:
+            text._write_xyz(out, f)
+            written += len(out)
     return written
 
 

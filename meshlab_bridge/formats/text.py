@@ -46,7 +46,15 @@ def _numbers(tokens: list[str], path: str, line: int, what: str) -> list[float]:
 
 
 def _read_xyz(path: str) -> Cloud:
-    rows = []
+    return xyz_cloud(np.concatenate([b for _, b in xyz_blocks(path)]), path)
+
+
+def xyz_blocks(path: str, size: int = 1 << 20):
+    """``(start, (m, 3 or 6) float64)`` blocks of an XYZ file's rows, in order,
+    refused as a whole read refuses them: a line of other than 3 or 6 columns,
+    or of another count than the lines before it, or not numeric, by its line
+    number; no rows at all."""
+    rows, width, start = [], None, 0
     with open(path, encoding="utf-8", errors="replace") as f:
         for no, line in enumerate(f, 1):
             text = line.split("#", 1)[0].strip()
@@ -57,13 +65,30 @@ def _read_xyz(path: str) -> Cloud:
                 raise PointCloudError(
                     f"cannot read {path!r}: line {no}: expected 3 (x y z) or 6 "
                     f"(x y z nx ny nz) columns, got {len(tok)}")
-            if rows and len(tok) != len(rows[0]):
+            if width is not None and len(tok) != width:
                 raise PointCloudError(f"cannot read {path!r}: line {no}: {len(tok)} columns, "
-                                      f"earlier lines {len(rows[0])}")
+                                      f"earlier lines {width}")
+            width = len(tok)
             rows.append(_numbers(tok, path, no, "row"))
-    if not rows:
+            if len(rows) == size:
+                yield start, np.array(rows, dtype=np.float64)
+                start += size
+                rows = []
+    if rows:
+        yield start, np.array(rows, dtype=np.float64)
+    elif width is None:
         raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
-    data = np.array(rows, dtype=np.float64)
+
+
+def xyz_count(path: str) -> int:
+    """The number of rows of an XYZ file (its non-blank lines outside comments),
+    without parsing them (``xyz_blocks`` checks them)."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        return sum(1 for line in f if line.split("#", 1)[0].strip())
+
+
+def xyz_cloud(data: np.ndarray, path: str) -> Cloud:
+    """The ``Cloud`` of XYZ rows (positions, and normals in columns 4–6)."""
     normals = data[:, 3:6].copy() if data.shape[1] == 6 else None
     return Cloud(np.ascontiguousarray(data[:, :3]), normals, label=os.path.basename(path),
                  meta={"format": ".xyz"})
@@ -161,7 +186,9 @@ def _read_off(path: str) -> Cloud:
                  meta={"format": ".off"})
 
 
-def _write_xyz(cloud: Cloud, path: str) -> None:
+def _write_xyz(cloud: Cloud, path) -> None:
+    """``cloud``'s rows as XYZ into ``path`` (a file name, or an open file a
+    streamed write appends block after block to)."""
     cols = cloud.points if cloud.normals is None else np.c_[cloud.points, cloud.normals]
     np.savetxt(path, cols, fmt=_FMT)
 
