@@ -133,26 +133,35 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
     result's per-row arrays in input order (``keep_idx`` for a removal).
     Returns the number of rows written."""
     src, dst = os.fspath(src), os.fspath(dst)
-    keep = None
-    if spec.kind in ("remove", "new_layer"):
-        keep = np.zeros(point_count(src), dtype=bool)
-        keep[np.asarray(fields[spec.index_field])] = True
     blocks = _block_reader(src)
-    if blocks is not None and _ext(dst) in _STREAMED and _ext(src) in _STREAMED:
-        if keep is not None and not spec.scalar_field:
-            return _write_kept_records(src, dst, keep, size)
-        return _write_las(_results(spec, blocks(size), fields, keep), dst)
-    if blocks is not None and _ext(dst) == ".ply":
-        return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
-    if blocks is not None and _ext(dst) == ".xyz":
-        return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
-    # formats without a chunked reader or writer: the cloud in memory, written whole
-    from . import write_cloud
+    to = _ext(dst)
+    if blocks is None or not (to in (".ply", ".xyz") or
+                              (to in _STREAMED and _ext(src) in _STREAMED)):
+        # no chunked reader or writer for the pair: the cloud in memory, written whole
+        from . import write_cloud
 
-    cloud = read_cloud(src)
-    out = next(_results(spec, iter([(0, cloud)]), fields, keep))
-    write_cloud(out, dst)
-    return len(out)
+        cloud = read_cloud(src)
+        keep = _kept(spec, fields, len(cloud))
+        out = next(_results(spec, iter([(0, cloud)]), fields, keep))
+        write_cloud(out, dst)
+        return len(out)
+    keep = _kept(spec, fields, point_count(src))
+    if to == ".ply":
+        return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
+    if to == ".xyz":
+        return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
+    if keep is not None and not spec.scalar_field:
+        return _write_kept_records(src, dst, keep, size)
+    return _write_las(_results(spec, blocks(size), fields, keep), dst)
+
+
+def _kept(spec, fields: dict, n: int):
+    """A removal's or new layer's kept rows as a mask of the n input rows."""
+    if spec.kind not in ("remove", "new_layer"):
+        return None
+    keep = np.zeros(n, dtype=bool)
+    keep[np.asarray(fields[spec.index_field])] = True
+    return keep
 
 
 def _block_reader(src: str):
