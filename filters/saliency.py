@@ -549,7 +549,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
                   n_rays: int = 8, alpha: float = 0.9, measure: str = "residual",
                   accumulation: str = "mean", acc_quantile: float = 0.1,
                   k_max: int = 32, adaptive_radius: bool = False,
-                  preset: str | None = None) -> dict:
+                  preset: str | None = None, normals=None) -> dict:
     """One tile of a tiled :func:`saliency_sparse_mdl` run (meshlab_bridge/tiles.py).
 
     The filter has two cloud-wide values: F̄_g, the mean descriptor behind the
@@ -565,6 +565,9 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     depends on points outside the box ``[lo, hi]``) and ``sure`` (exact rows).
     ``preset`` is accepted with the resolved parameters, whose values already
     carry it; ``adaptive_radius`` must be False (``run_tiled`` refuses it).
+    ``normals`` (the tile's rows of the input's normals) are used as given, as
+    a one-piece run uses them: no orientation, and the signs are the input's
+    in every tile.
     """
     pts = np.asarray(points, dtype=np.float64) - np.asarray(centre)
     k_all = min(max(k_max, SPACING_K + 1), n_total)
@@ -579,7 +582,10 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     if not sure[core].all():
         return {"exact": False}
     frames, gauss, _, atoms = _geometry(pts, hood, r, n_rays)
-    nrm = orient_normals_hood(pts, np.ascontiguousarray(frames[:, :, 2]), hood)
+    if normals is None:
+        nrm = orient_normals_hood(pts, np.ascontiguousarray(frames[:, :, 2]), hood)
+    else:
+        nrm = as_normals(normals, len(pts), func="saliency_sparse_mdl")
     del frames
     F4 = np.column_stack([nrm, gauss * r * r])
     Fbar4 = hood.mean(F4)

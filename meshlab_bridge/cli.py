@@ -289,9 +289,10 @@ def _tiled(args) -> bool:
 
 
 def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
-    """``_filter_file`` for a cloud larger than memory: positions streamed into a
-    scratch memory map, the filter run tile by tile on Dask, the result
-    streamed out with every attribute (meshlab_bridge/tiles.py)."""
+    """``_filter_file`` for a cloud larger than memory: positions (and, for a
+    filter that uses them, the file's normals) streamed into scratch memory
+    maps, the filter run tile by tile on Dask, the result streamed out with
+    every attribute (meshlab_bridge/tiles.py)."""
     import shutil
     import tempfile
 
@@ -317,9 +318,13 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
         with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
                                memory_budget=args.memory_budget) as client:
             source = tiles.ingest(stream.position_chunks(src), n, scratch)
-            log.info("%s: %d points from %s (tiled)", spec.command, n, src)
-            res = tiles.run_tiled(spec.name, source=source, params=params, tiles=args.tiles,
-                                  client=client, scratch=scratch,
+            normals = None
+            if spec.uses_normals:  # used as the one-piece run uses them
+                normals = stream.normals_into(src, n, os.path.join(scratch, "input_normals.npy"))
+            log.info("%s: %d points from %s (tiled%s)", spec.command, n, src,
+                     ", with its normals" if normals is not None else "")
+            res = tiles.run_tiled(spec.name, source=source, normals=normals, params=params,
+                                  tiles=args.tiles, client=client, scratch=scratch,
                                   worker_io={"on": True, "off": False}.get(args.worker_io))
         written = stream.write_streamed(spec, src, dst, res.fields)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,

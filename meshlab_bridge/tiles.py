@@ -937,7 +937,9 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     points : (n, 3) float, optional
         The cloud, or ``source`` (streamed positions on disk).
     normals : (n, 3) float, optional
-        Input normals (an orientation hint for denoise).
+        Input normals, for the filters that take them (denoise, saliency,
+        simplify), used as their one-piece run uses them; an array or a
+        memory map (the CLI streams a file's normals into one).
     params : dict
         The filter's parameters (checked as the filter checks them).
     client : dask.distributed.Client, optional
@@ -979,6 +981,8 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     try:
         if source is None:
             source = source_from_array(points, scratch)
+        if normals is not None:
+            normals = _checked_normals(spec, normals, source.n)
         with dask_client(client, workers=workers, scheduler=scheduler,
                          memory_budget=memory_budget) as cl:
             import time
@@ -1013,6 +1017,30 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     finally:
         if own:
             shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _checked_normals(spec, normals, n: int):
+    """The input normals a tiled run of ``spec`` reads, refused as a one-piece
+    run refuses them (a filter that takes none, a row count that is not the
+    points', a non-finite or zero-length row), checked chunk by chunk so that a
+    memory map stays on disk."""
+    if not spec.uses_normals:
+        raise InvalidParameterError(f"{spec.command}: takes no input normals")
+    func = spec.func.__name__
+    if np.ndim(normals) != 2 or np.shape(normals)[1] != 3 or len(normals) != n:
+        raise PointCloudError(f"{func}: normals has shape {np.shape(normals)}; expected "
+                              f"({n}, 3), one per point")
+    for s0 in range(0, n, CHUNK):
+        block = np.asarray(normals[s0:s0 + CHUNK], dtype=np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bad = ~(np.linalg.norm(block, axis=1) >= 1e-12) | ~np.isfinite(block).all(axis=1)
+        if bad.any():
+            rows = np.flatnonzero(bad) + s0
+            shown = ", ".join(map(str, rows[:5])) + (", …" if len(rows) > 5 else "")
+            raise PointCloudError(f"{func}: normals has zero-length or non-finite rows "
+                                  f"(rows {shown}); give those rows a normal, or pass no "
+                                  "normals to have them estimated")
+    return normals if isinstance(normals, np.memmap) else np.asarray(normals, np.float64)
 
 
 def _spec(registry, name: str):
@@ -1095,8 +1123,7 @@ def _denoise(runner, src, normals, h, prm) -> TiledResult:
     pos = runner.store("points", (n, 3))
     nrm = runner.store("normals", (n, 3))
     score = runner.store("edge_score", n)
-    given = None if normals is None else \
-        runner.on_disk("given_normals", np.asarray(normals, dtype=np.float64))
+    given = None if normals is None else runner.on_disk("given_normals", normals)
     plan: list = []
     runs = 0
     while True:
@@ -1228,6 +1255,7 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
 
     n = src.n
     nrm = runner.store("normals", (n, 3))
+    given = None if normals is None else runner.on_disk("given_normals", normals)
     sums, align = {}, []
 
     def collect_mean(cell, res):
@@ -1238,8 +1266,10 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
     hops = tile_hops(prm)
     halo = (hops + 1) * max(prm["radius"], HOP_H) * h
     runner.run("saliency mean", saliency_tile, halo, dict(base, stage="mean", hops=hops),
-               [(nrm, "normals", "ext")], reduce=_mean_reduce, collect=collect_mean)
-    _align_signs(runner, src, nrm, align)
+               [(nrm, "normals", "ext")], reads={"normals": (given, "rows")},
+               reduce=_mean_reduce, collect=collect_mean)
+    if given is None:  # given normals keep their signs, as in one piece
+        _align_signs(runner, src, nrm, align)
     tot = np.zeros(4)
     for cell in sorted(sums):  # the tiles' sums in the aligned signs, in cell
         row, first, part = sums[cell]  # order: the same sum in every run
@@ -1255,7 +1285,7 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
                [(resid, "residual", "ext"), (sparsity, "sparsity", "ext"),
                 (acc, "accumulated", "ext")],
                # one core row's aligned normal fixes the tile's signs
-               reads={"reference": (nrm, "first_core")})
+               reads={"reference": (nrm, "first_core"), "normals": (given, "rows")})
     top_r = float(resid.max())
     top_s = float(sparsity.max()) if prm["measure"] == "mdl" else None
     top_a = float(acc.max())
@@ -1552,8 +1582,7 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
     sigma = runner.store("sigma", n)
     rows6 = runner.store("rows6", n)
 
-    given = None if normals is None else \
-        runner.on_disk("given_normals", np.asarray(normals, dtype=np.float64))
+    given = None if normals is None else runner.on_disk("given_normals", normals)
     base = dict(centre=centre, h=h, n_total=n, k=k)
     runner.run("simplify features", sd.sdbs_tile, _knn_reach(max(k, sd.GRAPH_K)) * h,
                dict(base, stage="features"),

@@ -76,6 +76,40 @@ def test_saliency_equals_one_piece(client, monkeypatch):
                   ).max() <= 1e-9
 
 
+def _surface_normals(pts, seed):
+    """The unit normals of ``_surface`` at ``pts``, each with a random sign (a
+    one-piece run keeps given signs, so a tiled run must too)."""
+    x, y = pts[:, 0] - 3e5, pts[:, 1] + 2e5
+    nrm = np.c_[-0.9 * np.cos(3 * x) * np.cos(2 * y), 0.6 * np.sin(3 * x) * np.sin(2 * y),
+                np.ones(len(pts))]
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    return nrm * np.random.default_rng(seed).choice([-1.0, 1.0], len(pts))[:, None]
+
+
+def test_saliency_with_normals_equals_one_piece(client):
+    pts = CLOUD[:12_000]
+    nrm = _surface_normals(pts, 2)
+    ref = saliency_sparse_mdl(pts, nrm)
+    res = tiles.run_tiled("saliency", pts, nrm, client=client, tiles=2000)
+    assert res.stats["tiles"] >= 4
+    assert np.abs(res.fields["saliency"] - ref.saliency).max() <= 1e-9
+    assert np.array_equal(res.fields["normals"], ref.normals)
+    # the given signs matter: without them the answer is another one
+    assert np.abs(saliency_sparse_mdl(pts).saliency - ref.saliency).max() > 1e-3
+
+
+def test_tiled_normals_are_refused_as_one_piece_refuses_them(client):
+    nrm = _surface_normals(CLOUD, 3)
+    bad = nrm.copy()
+    bad[[7, 9000]] = 0.0
+    with pytest.raises(PointCloudError, match=r"zero-length or non-finite rows \(rows 7, 9000\)"):
+        tiles.run_tiled("saliency", CLOUD, bad, client=client, tiles=4000)
+    with pytest.raises(PointCloudError, match="expected \\(20000, 3\\)"):
+        tiles.run_tiled("denoise", CLOUD, nrm[:-1], client=client, tiles=4000)
+    with pytest.raises(InvalidParameterError, match="features: takes no input normals"):
+        tiles.run_tiled("features", CLOUD, nrm, client=client, tiles=4000)
+
+
 class _NewestFirst:
     """``distributed.as_completed`` that hands out the newest future first:
     tile results then arrive in an order unlike the cells' (and unlike
@@ -235,6 +269,33 @@ def test_cli_tiled_laz_equals_one_piece(tmp_path):
             assert np.abs(va - vb).max() <= 1e-9, d
         elif d not in ("red", "green", "blue"):  # colours: a ramp of the saliency
             assert np.array_equal(va, vb), d
+
+
+@pytest.mark.parametrize("name", ["saliency", "denoise"])
+def test_cli_tiled_uses_the_files_normals_as_one_piece_does(tmp_path, name):
+    from plyfile import PlyData, PlyElement
+
+    from pcprep.meshlab_bridge.cli import main
+
+    pts = _surface(8000, seed=9, outliers=0)
+    nrm = _surface_normals(pts, 4)
+    v = np.zeros(len(pts), dtype=[(c, "f8") for c in ("x", "y", "z", "nx", "ny", "nz")])
+    for j, c in enumerate("xyz"):
+        v[c], v["n" + c] = pts[:, j], nrm[:, j]
+    src = tmp_path / "in.ply"
+    PlyData([PlyElement.describe(v, "vertex")]).write(str(src))
+    extra = ["--n-iter", "1"] if name == "denoise" else []
+    assert main([name, str(src), str(tmp_path / "one.ply"), "--quiet", *extra]) == 0
+    assert main([name, str(src), str(tmp_path / "tiled.ply"), "--tiles", "2000",
+                 "--workers", "2", "--quiet", *extra]) == 0
+    a = PlyData.read(str(tmp_path / "one.ply"))["vertex"].data
+    b = PlyData.read(str(tmp_path / "tiled.ply"))["vertex"].data
+    assert a.dtype == b.dtype
+    for c in a.dtype.names:
+        assert np.abs(a[c].astype(np.float64) - b[c].astype(np.float64)).max() <= 1e-9, c
+    # the given signs are kept (denoise: as an orientation hint)
+    got = np.c_[b["nx"], b["ny"], b["nz"]]
+    assert (np.einsum("ij,ij->i", got, nrm) > 0).mean() > 0.99
 
 
 def test_cli_refuses_bad_tiles(capsys):

@@ -128,6 +128,30 @@ def position_chunks(path, size: int = CHUNK):
         yield s, pts[s:s + size]
 
 
+def normals_into(path, n: int, out: str):
+    """The file's normals (LAS ``NormalX/Y/Z`` or its other names, PLY ``nx ny
+    nz``, XYZ columns 4–6, …) streamed into a float64 (n, 3) memory map at
+    ``out``, for a tiled filter that uses them as its one-piece run does; None
+    where the file has none (nothing written)."""
+    path = os.fspath(path)
+    blocks = _block_reader(path)
+    if blocks is None:
+        cloud = read_cloud(path)
+        parts = iter([(0, cloud)]) if cloud.normals is not None else None
+    else:
+        peek = blocks(1)
+        first = next(peek, None)
+        peek.close()
+        parts = blocks(CHUNK) if first is not None and first[1].normals is not None else None
+    if parts is None:
+        return None
+    arr = np.lib.format.open_memmap(out, mode="w+", dtype=np.float64, shape=(n, 3))
+    for start, cloud in parts:
+        arr[start:start + len(cloud)] = cloud.normals
+    arr.flush()
+    return arr
+
+
 def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal).
