@@ -124,20 +124,33 @@ def check_spread(points: np.ndarray, *, func: str, need_surface: bool = True) ->
     spacing h and every k-NN neighbourhood degenerate (zero distances); the
     message says how many and where, and how to remove them.
     """
-    centred = points - points.mean(axis=0)
+    check_extent(points[:: max(1, len(points) // 200_000)], points.mean(axis=0),
+                 float(np.abs(points).max()), func=func, need_surface=need_surface)
+    dup = _duplicate_pairs(points)
+    if dup is not None:
+        raise duplicate_error(func, *dup)
+
+
+def check_extent(sample: np.ndarray, mean: np.ndarray, largest: float, *, func: str,
+                 need_surface: bool = True) -> None:
+    """``check_spread``'s coincident and collinear tests on a row ``sample`` of
+    the cloud, its ``mean`` and its ``largest`` absolute coordinate (a tiled
+    run passes those of the whole cloud, computed in chunks)."""
     # singular values of the centred cloud are the principal extents
-    sv = np.linalg.svd(centred[:: max(1, len(points) // 200_000)], compute_uv=False)
-    if sv[0] <= 1e-12 * max(1.0, float(np.abs(points).max())):
+    sv = np.linalg.svd(sample - mean, compute_uv=False)
+    if sv[0] <= 1e-12 * max(1.0, largest):
         raise PointCloudError(f"{func}: all points coincide; no surface to process")
     if need_surface and sv[1] <= 1e-9 * sv[0]:
         raise PointCloudError(f"{func}: all points are collinear; no surface to process")
-    dup = _duplicate_pairs(points)
-    if dup is not None:
-        count, a, b = dup
-        raise PointCloudError(
-            f"{func}: {count} duplicate point(s) (first: rows {a} and {b}); "
-            "remove duplicates first (MeshLab: meshing_remove_duplicate_vertices)"
-        )
+
+
+def duplicate_error(func: str, count: int | None, a: int, b: int) -> PointCloudError:
+    """The error for duplicate rows ``a`` and ``b`` (``count`` pairs in all,
+    None where only some of the cloud was searched)."""
+    which = (f"{count} duplicate point(s) (first: rows {a} and {b})" if count is not None
+             else f"duplicate points (rows {a} and {b}, and maybe others)")
+    return PointCloudError(f"{func}: {which}; remove duplicates first (MeshLab: "
+                           "meshing_remove_duplicate_vertices)")
 
 
 def check_param(

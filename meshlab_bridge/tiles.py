@@ -58,7 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcprep.filters import progress
-from pcprep.filters._validation import InvalidParameterError, PointCloudError
+from pcprep.filters._validation import (InvalidParameterError, PointCloudError,
+                                        _duplicate_pairs, check_extent, duplicate_error)
 from pcprep.filters.neighbors import SPACING_K, build_tree, knn, spacing_from_rows, tile_miss
 
 log = logging.getLogger("pcprep")
@@ -611,6 +612,8 @@ def _tile_task(fn, cell, xyz, order, spans, blo, bhi, args, reads, writes, reduc
     try:
         rows, pts, core = _cut(xyz, order, spans, blo, bhi)
         res = fn(pts, blo, bhi, core, **args, **_read(reads, rows, core))
+        if "duplicate" in res:  # nothing written: the run stops
+            return dict(res, duplicate=tuple(int(r) for r in rows[list(res["duplicate"])]))
         if res["exact"]:
             _finish(cell, rows, core, res, writes, reduce)
         return res
@@ -706,8 +709,8 @@ class _Runner:
     one machine, out of the per-row work."""
 
     def __init__(self, client, src: Source, index: TileIndex, scratch: str, on_result=None,
-                 shared: bool | None = None):
-        self.client, self.src, self.index = client, src, index
+                 shared: bool | None = None, func: str = "run_tiled"):
+        self.client, self.src, self.index, self.func = client, src, index, func
         self.scratch, self.on_result = scratch, on_result
         mapped = isinstance(index.xyz, np.memmap) and isinstance(index.order, np.memmap)
         self.home = _shares_scratch(client, scratch) if mapped and shared is not False \
@@ -797,6 +800,9 @@ class _Runner:
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
         self.passes += 1
+        if self.passes == 1:  # the first pass also looks for duplicate points
+            fn = functools.partial(_with_duplicate_check, fn)
+            args = dict(args, caller=self.func)
         seen = self.store(f"seen-{self.passes}", self.src.n, np.int8)
         queue = list(cells)
         direct = set()  # cells a worker away from the scratch folder sent back
@@ -841,6 +847,9 @@ class _Runner:
                     log.debug("%s: tile %d: halo widened to %.4g", label, c, width[c])
                     queue.insert(0, c)
                 else:
+                    if "duplicate" in res:
+                        i, j = res["duplicate"] if rows is None else rows[list(res["duplicate"])]
+                        raise duplicate_error(res["caller"], None, *sorted((int(i), int(j))))
                     self.halo[c] = width[c]
                     if rows is not None:  # the driver's I/O
                         _finish(c, rows, core, res, writes, reduce)
@@ -981,6 +990,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     try:
         if source is None:
             source = source_from_array(points, scratch)
+        _check_cloud(spec, source, resolved)
         if normals is not None:
             normals = _checked_normals(spec, normals, source.n)
         with dask_client(client, workers=workers, scheduler=scheduler,
@@ -993,7 +1003,8 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
             t_index = time.perf_counter() - t0
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
                      len(index.cells), index.side)
-            runner = _Runner(cl, source, index, scratch, on_result, shared=worker_io)
+            runner = _Runner(cl, source, index, scratch, on_result, shared=worker_io,
+                             func=spec.func.__name__)
             t1 = time.perf_counter()
             try:
                 in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
@@ -1017,6 +1028,47 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
     finally:
         if own:
             shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _min_points(command: str, prm: dict) -> int:
+    """The fewest points the filter's one-piece run takes (its ``as_points``
+    check; a test compares the two for every tiled filter)."""
+    from pcprep.filters.neighbors import SPACING_K
+    from pcprep.filters.saliency import MIN_POINTS
+
+    return {"outliers": lambda: max(prm["k"], SPACING_K) + 1,
+            "denoise": lambda: SPACING_K + 1, "saliency": lambda: MIN_POINTS,
+            "features": lambda: prm["k_max"] + 1, "holes": lambda: prm["k_max"] + 1,
+            "simplify": lambda: prm["k"] + 1}[command]()
+
+
+def _check_cloud(spec, src: Source, prm: dict) -> None:
+    """The one-piece run's refusals of a cloud, before any tile: too few points,
+    all coincident, all collinear (on the same strided sample, with the mean
+    and the largest coordinate of the whole cloud).  Duplicate points are
+    looked for by the tiles of the first pass (``_with_duplicate_check``)."""
+    func = spec.func.__name__
+    need = _min_points(spec.command, prm)
+    if src.n < need:
+        raise PointCloudError(f"{func}: needs at least {need} points for its "
+                              f"neighbourhoods, got {src.n}")
+    sample = np.asarray(src.xyz[:: max(1, src.n // 200_000)])
+    largest = float(max(np.abs(src.lo).max(), np.abs(src.hi).max()))
+    check_extent(sample, _chunked_mean(src.xyz), largest, func=func)
+
+
+def _with_duplicate_check(fn, points, lo, hi, core, *, caller, **kw):
+    """``fn`` on a tile of a run's first pass, which also looks for exact
+    duplicates among the tile's core rows (two equal points lie in the same
+    cell, so every pair is seen by one tile): ``duplicate = (i, j)``, rows of
+    ``points``, in the result."""
+    res = fn(points, lo, hi, core, **kw)
+    if res.get("exact"):
+        at = np.flatnonzero(core)
+        dup = _duplicate_pairs(np.asarray(points)[at])
+        if dup is not None:
+            res = dict(res, duplicate=(int(at[dup[1]]), int(at[dup[2]])), caller=caller)
+    return res
 
 
 def _checked_normals(spec, normals, n: int):

@@ -110,6 +110,40 @@ def test_tiled_normals_are_refused_as_one_piece_refuses_them(client):
         tiles.run_tiled("features", CLOUD, nrm, client=client, tiles=4000)
 
 
+@pytest.mark.parametrize("name", ["outliers", "denoise", "saliency", "features", "holes",
+                                  "simplify"])
+def test_tiled_refuses_too_few_points_as_one_piece_does(client, name):
+    """The fewest points a tiled run takes are the one-piece run's, with its
+    message (a 5-point cloud ran tiled and was written out)."""
+    from pcprep.meshlab_bridge import registry
+
+    spec = tiles._spec(registry, name)
+    prm = dict(spec.resolve({"ratio": 0.5} if name == "simplify" else {}))
+    need = tiles._min_points(spec.command, prm)
+    pts = CLOUD[:need - 1]
+    prm.pop("preset", None)
+    with pytest.raises(PointCloudError) as one:
+        spec.func(pts, **prm)
+    with pytest.raises(PointCloudError) as tiled:
+        tiles.run_tiled(name, pts, params=prm, client=client, tiles=1000)
+    assert str(tiled.value) == str(one.value)
+    assert f"needs at least {need} points" in str(one.value)
+
+
+def test_tiled_refuses_collinear_and_duplicate_points(client):
+    line = np.c_[np.linspace(0, 1, 500), 2 * np.linspace(0, 1, 500), np.zeros(500)] + 1e5
+    with pytest.raises(PointCloudError, match="remove_outliers: all points are collinear"):
+        tiles.run_tiled("outliers", line, client=client, tiles=100)
+    pts = CLOUD.copy()
+    pts[15_000] = pts[123]
+    with pytest.raises(PointCloudError, match="remove_outliers: 1 duplicate point"):
+        remove_outliers(pts)
+    for worker_io in (True, False):  # found by the tile that holds both rows
+        with pytest.raises(PointCloudError, match=r"remove_outliers: duplicate points "
+                           r"\(rows 123 and 15000, and maybe others\)"):
+            tiles.run_tiled("outliers", pts, client=client, tiles=2500, worker_io=worker_io)
+
+
 class _NewestFirst:
     """``distributed.as_completed`` that hands out the newest future first:
     tile results then arrive in an order unlike the cells' (and unlike
