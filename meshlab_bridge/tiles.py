@@ -109,8 +109,8 @@ class Source:
 def ingest(chunks, n: int, scratch: str) -> Source:
     """Write streamed ``(start, xyz)`` chunks into ``scratch/xyz.npy``; refuse
     non-finite rows (naming the first ones) and chunks that do not cover rows
-    0…n−1 once each, in order (a count that does not match the data).  The tile index's compiled
-    kernels load meanwhile (``_preload_index_kernels``)."""
+    0…n−1 once each, in order (a count that does not match the data).  The
+    tile index's compiled kernels load meanwhile (``_preload_index_kernels``)."""
     _preload_index_kernels()
     xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz.npy"), mode="w+",
                                     dtype=np.float64, shape=(n, 3))
