@@ -35,6 +35,11 @@ the scores of every row, and denoise's two inner-loop decisions by a plan
 checked against the cloud-wide sums (``_denoise``).  docs/decisions/scale.md
 has the derivations.
 
+Input.  A run refuses what the one-piece run refuses, with its message: too
+few points, all coincident or collinear (``_check_cloud``, before the index),
+duplicate points (found by the first pass's tiles), bad input normals
+(``_checked_normals``; normals are used as the one-piece run uses them).
+
 Engine: ``dask.distributed``.  ``client=None`` starts a ``LocalCluster`` sized
 by ``workers`` and ``memory_budget`` (closed at the end); ``scheduler`` attaches
 to a running one.  A task lost with its worker is run again by the scheduler
