@@ -444,6 +444,42 @@ def test_e57_scans_merge_with_their_fields(tmp_path):
         formats.write_cloud(Cloud(pts + UTM), tmp_path / "far.e57")
 
 
+def test_e57_read_in_blocks_is_the_whole_read(tmp_path):
+    """E57 scans are read in blocks for a tiled run (libe57's reader with small
+    buffers): the blocks, put together, are the whole read (poses, fields,
+    scan index, colours scaled over every point), and the streamed positions
+    and count are the cloud's."""
+    pye57 = pytest.importorskip("pye57")
+    from pcprep.meshlab_bridge.formats import e57 as e57_io
+    from pcprep.meshlab_bridge.formats import stream
+
+    g = np.random.default_rng(6)
+    path = tmp_path / "two.e57"
+    f = pye57.E57(str(path), mode="w")
+    for i, (n, rot) in enumerate(((700, [1, 0, 0, 0]), (450, [0.8, 0.0, 0.6, 0.0]))):
+        data = {"cartesianX": g.normal(size=n), "cartesianY": g.normal(size=n),
+                "cartesianZ": g.normal(size=n), "intensity": g.random(n).astype(np.float32),
+                "colorRed": g.integers(0, 256, n).astype(np.uint8),
+                "colorGreen": g.integers(0, 256, n).astype(np.uint8),
+                "colorBlue": g.integers(0, 256, n).astype(np.uint8)}
+        f.write_scan_raw(data, rotation=np.array(rot), translation=np.array([i * 5.0, 1.0, 2.0]))
+    f.close()
+    whole = formats.read_cloud(path)
+    parts = list(e57_io.blocks(str(path), 200))
+    assert [s for s, _ in parts] == list(range(0, 700, 200)) + [700 + s for s in
+                                                                   range(0, 450, 200)]
+    assert np.array_equal(np.concatenate([c.points for _, c in parts]), whole.points)
+    assert np.array_equal(np.concatenate([c.colors for _, c in parts]), whole.colors)
+    for k in whole.attributes:
+        assert np.array_equal(np.concatenate([c.attributes[k] for _, c in parts]),
+                              whole.attributes[k]), k
+    assert set(np.unique(whole.attributes["scan_index"])) == {0, 1}
+    assert whole.colors[:, :3].max() <= 1.0 and whole.colors[:, :3].max() > 0.9
+    assert stream.point_count(path) == 1150
+    got = np.concatenate([b for _, b in stream.position_chunks(path, size=300)])
+    assert np.array_equal(got, whole.points)
+
+
 @pytest.mark.parametrize("ext", [".stl", ".dxf", ".u3d", ".wrl", ".e57x", ""])
 def test_outputs_that_cannot_hold_the_result_are_refused_before_the_run(tmp_path, ext):
     src = tmp_path / "in.ply"

@@ -5,11 +5,11 @@ Streamed reading and writing for tiled runs of clouds larger than memory.
 
 ``position_chunks(path)`` yields ``(start, xyz)`` blocks without loading the
 file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
-plyfile, ``.npy`` memory-mapped, XYZ parsed block by block; the other formats
-are read whole (they carry no index to stream by).  ``write_streamed`` writes a
+plyfile, ``.npy`` memory-mapped, XYZ parsed block by block, E57 through
+libe57's reader with block-sized buffers; the other formats are read whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
-input attribute kept, block by block where the input is LAS/LAZ, XYZ or a
-binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
+input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57 or
+a binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
 input's header, new results as extra dimensions; a removal copies the kept
 rows' records as they are), to binary PLY (plyfile's header, then the rows;
 the same bytes ``ply.write`` gives the whole result) and to XYZ.  Other pairs
@@ -50,6 +50,10 @@ def point_count(path) -> int:
         from . import text
 
         return text.xyz_count(path)
+    if ext == ".e57":
+        from . import e57
+
+        return e57.point_count(path)
     if ext == ".ply":
         ply = _ply_mmap(path)
         if ply is not None:
@@ -115,6 +119,12 @@ def position_chunks(path, size: int = CHUNK):
 
         for s, data in text.xyz_blocks(path, size):
             yield s, np.ascontiguousarray(data[:, :3])
+        return
+    if ext == ".e57":
+        from . import e57
+
+        for s, cloud in e57.blocks(path, size, attributes=False):
+            yield s, cloud.points
         return
     ply = _ply_mmap(path) if ext == ".ply" else None
     if ply is not None:
@@ -190,8 +200,8 @@ def _kept(spec, fields: dict, n: int):
 
 def _block_reader(src: str):
     """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
-    every attribute kept, for LAS/LAZ, XYZ and binary PLY holding vertices
-    alone; None for the formats read whole."""
+    every attribute kept, for LAS/LAZ, XYZ, E57 and binary PLY holding
+    vertices alone; None for the formats read whole."""
     ext = _ext(src)
     if ext in _STREAMED:
         import laspy
@@ -212,6 +222,10 @@ def _block_reader(src: str):
 
         return lambda size: ((s, text.xyz_cloud(data, src))
                              for s, data in text.xyz_blocks(src, size))
+    if ext == ".e57":
+        from . import e57
+
+        return lambda size: e57.blocks(src, size)
     ply_data = _ply_mmap(src) if ext == ".ply" else None
     if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
         return None  # ASCII, or faces and other elements that index every vertex
