@@ -430,6 +430,46 @@ def test_pcd_ascii_and_binary_as_pcl_writes_them(tmp_path):
         formats.read_cloud(tmp_path / "c.pcd")
 
 
+def test_binary_pcd_streams_as_its_whole_read(tmp_path):
+    """A binary PCD is memory-mapped for a tiled run: positions and blocks are
+    the whole read's, a PLY written from its blocks is the whole write, and a
+    file cut short is refused with its counts."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.formats import pcd, stream
+
+    g = np.random.default_rng(8)
+    n = 2500
+    formats.write_cloud(Cloud(UTM + g.normal(size=(n, 3)), None, np.c_[g.random((n, 3)),
+                              np.ones(n)], None, None,
+                              {"intensity": g.random(n).astype(np.float32)}), tmp_path / "a.pcd")
+    path = tmp_path / "a.pcd"
+    assert b"DATA binary" in path.read_bytes()[:400]
+    whole = formats.read_cloud(path)
+    assert stream.point_count(path) == n
+    assert np.array_equal(np.concatenate([b for _, b in stream.position_chunks(path, 700)]),
+                          whole.points)
+    parts = [c for _, c in pcd.blocks(str(path), 700)]
+    assert np.array_equal(np.concatenate([c.colors for c in parts]), whole.colors)
+    assert np.array_equal(np.concatenate([c.attributes["intensity"] for c in parts]),
+                          whole.attributes["intensity"])
+    registry.load_all()
+    spec = registry.get("saliency")
+    fields = {"saliency": g.random(n)}
+    ref = tmp_path / "whole.ply"
+    from pcprep.meshlab_bridge.convert import quality_ramp
+
+    out = result_cloud(spec, whole, SimpleNamespace(**fields))
+    formats.write_cloud(out.with_(colors=quality_ramp(out.quality)), ref)
+    assert stream.write_streamed(spec, path, tmp_path / "s.ply", fields, size=700) == n
+    assert (tmp_path / "s.ply").read_bytes() == ref.read_bytes()
+    path.write_bytes(path.read_bytes()[:-50])
+    with pytest.raises(PointCloudError, match=f"declares {n} points"):
+        stream.point_count(path)
+
+
 def test_e57_scans_merge_with_their_fields(tmp_path):
     pye57 = pytest.importorskip("pye57")
     g = np.random.default_rng(5)

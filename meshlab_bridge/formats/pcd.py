@@ -59,22 +59,54 @@ def _dtype(head: dict, path: str) -> np.dtype:
     return np.dtype(out)
 
 
+def binary_rows(path: str):
+    """``(rows, head)``: a binary PCD's records memory-mapped, with the row
+    count checked against the header, or ``(None, head)`` for another DATA."""
+    with open(path, "rb") as f:
+        head = _header(f, path)
+        offset = f.tell()
+    if head["DATA"][0] != "binary":
+        return None, head
+    dt = _dtype(head, path)
+    for c in "xyz":
+        if c not in dt.names:
+            raise PointCloudError(f"cannot read {path!r}: the PCD file has no {c!r} field")
+    n = _count(head)
+    room = os.path.getsize(path) - offset
+    if room < n * dt.itemsize:
+        raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
+                              f"the file holds {room // dt.itemsize}")
+    if room > n * dt.itemsize:
+        raise PointCloudError(f"cannot read {path!r}: data continues after the {n} "
+                              "points the header declares")
+    if n == 0:
+        return np.zeros(0, dtype=dt), head
+    return np.memmap(path, dtype=dt, mode="r", offset=offset, shape=(n,)), head
+
+
+def _count(head: dict) -> int:
+    return int(head.get("POINTS", [0])[0]) or int(head["WIDTH"][0]) * int(head["HEIGHT"][0])
+
+
+def blocks(path: str, size: int = 1 << 20):
+    """``(start, Cloud)`` blocks of a binary PCD's rows (None for another DATA)."""
+    rows, head = binary_rows(path)
+    if rows is None:
+        return None
+    return ((s, _to_cloud(np.array(rows[s:s + size]), head, path))
+            for s in range(0, len(rows), size))
+
+
 def read(path: str) -> Cloud:
+    rows, head = binary_rows(path)
+    if rows is not None:
+        return _to_cloud(np.array(rows), head, path)
     with open(path, "rb") as f:
         head = _header(f, path)
         dt = _dtype(head, path)
-        n = int(head.get("POINTS", [0])[0]) or int(head["WIDTH"][0]) * int(head["HEIGHT"][0])
+        n = _count(head)
         mode = head["DATA"][0]
-        if mode == "binary":
-            raw = f.read()
-            if len(raw) < n * dt.itemsize:
-                raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
-                                      f"the file holds {len(raw) // dt.itemsize}")
-            if len(raw) > n * dt.itemsize:
-                raise PointCloudError(f"cannot read {path!r}: data continues after the {n} "
-                                      "points the header declares")
-            data = np.frombuffer(raw, dtype=dt, count=n).copy()
-        elif mode == "ascii":
+        if mode == "ascii":
             lines = [ln.split() for ln in f.read().decode("ascii", "replace").splitlines()
                      if ln.strip()]
             if len(lines) != n:

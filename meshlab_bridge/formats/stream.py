@@ -5,11 +5,12 @@ Streamed reading and writing for tiled runs of clouds larger than memory.
 
 ``position_chunks(path)`` yields ``(start, xyz)`` blocks without loading the
 file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
-plyfile, ``.npy`` memory-mapped, XYZ parsed block by block, E57 through
-libe57's reader with block-sized buffers; the other formats are read whole.  ``write_streamed`` writes a
+plyfile, binary PCD and ``.npy`` memory-mapped, XYZ parsed block by block, E57
+through libe57's reader with block-sized buffers; the other formats are read
+whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
-input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57 or
-a binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
+input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57,
+binary PCD or a binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
 input's header, new results as extra dimensions; a removal copies the kept
 rows' records as they are), to binary PLY (plyfile's header, then the rows;
 the same bytes ``ply.write`` gives the whole result) and to XYZ.  Other pairs
@@ -54,6 +55,12 @@ def point_count(path) -> int:
         from . import e57
 
         return e57.point_count(path)
+    if ext == ".pcd":
+        from . import pcd
+
+        rows, _ = pcd.binary_rows(path)
+        if rows is not None:
+            return len(rows)
     if ext == ".ply":
         ply = _ply_mmap(path)
         if ply is not None:
@@ -126,6 +133,15 @@ def position_chunks(path, size: int = CHUNK):
         for s, cloud in e57.blocks(path, size, attributes=False):
             yield s, cloud.points
         return
+    if ext == ".pcd":
+        from . import pcd
+
+        rows, _ = pcd.binary_rows(path)
+        if rows is not None:
+            for s in range(0, len(rows), size):
+                block = rows[s:s + size]
+                yield s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
+            return
     ply = _ply_mmap(path) if ext == ".ply" else None
     if ply is not None:
         v = ply["vertex"]
@@ -200,8 +216,8 @@ def _kept(spec, fields: dict, n: int):
 
 def _block_reader(src: str):
     """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
-    every attribute kept, for LAS/LAZ, XYZ, E57 and binary PLY holding
-    vertices alone; None for the formats read whole."""
+    every attribute kept, for LAS/LAZ, XYZ, E57, binary PCD and binary PLY
+    holding vertices alone; None for the formats read whole."""
     ext = _ext(src)
     if ext in _STREAMED:
         import laspy
@@ -226,6 +242,12 @@ def _block_reader(src: str):
         from . import e57
 
         return lambda size: e57.blocks(src, size)
+    if ext == ".pcd":
+        from . import pcd
+
+        if pcd.binary_rows(src)[0] is not None:
+            return lambda size: pcd.blocks(src, size)
+        return None
     ply_data = _ply_mmap(src) if ext == ".ply" else None
     if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
         return None  # ASCII, or faces and other elements that index every vertex
