@@ -43,8 +43,11 @@ def point_count(path) -> int:
     if ext in _STREAMED:
         import laspy
 
-        with laspy.open(path) as f:
-            return int(f.header.point_count)
+        try:
+            with laspy.open(path) as f:
+                return int(f.header.point_count)
+        except (laspy.errors.LaspyException, ValueError) as exc:
+            raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
     if ext == ".npy":
         return len(_npy(path))
     if ext == ".xyz":
