@@ -468,6 +468,17 @@ def test_binary_pcd_streams_as_its_whole_read(tmp_path):
     formats.write_cloud(out.with_(colors=quality_ramp(out.quality)), ref)
     assert stream.write_streamed(spec, path, tmp_path / "s.ply", fields, size=700) == n
     assert (tmp_path / "s.ply").read_bytes() == ref.read_bytes()
+    # PCD out, block by block: the whole write's bytes (a removal's count included)
+    for name, fields in (("saliency", fields),
+                         ("outliers", {"keep_idx": np.flatnonzero(g.random(n) < 0.6)})):
+        spec = registry.get(name)
+        out = result_cloud(spec, whole, SimpleNamespace(**fields))
+        if spec.kind == "scalar":
+            out = out.with_(colors=quality_ramp(out.quality))
+        formats.write_cloud(out, tmp_path / "whole.pcd")
+        assert stream.write_streamed(spec, path, tmp_path / "s.pcd", fields,
+                                     size=700) == len(out)
+        assert (tmp_path / "s.pcd").read_bytes() == (tmp_path / "whole.pcd").read_bytes()
     path.write_bytes(path.read_bytes()[:-50])
     with pytest.raises(PointCloudError, match=f"declares {n} points"):
         stream.point_count(path)

@@ -160,6 +160,16 @@ def _to_cloud(data: np.ndarray, head: dict, path: str) -> Cloud:
 
 
 def write(cloud: Cloud, path: str) -> None:
+    data = records(cloud)
+    with open(path, "wb") as f:
+        f.write(header(data.dtype, len(cloud), cloud.meta.get("pcd", {})))
+        f.write(data.tobytes())
+
+
+def records(cloud: Cloud) -> np.ndarray:
+    """``cloud``'s rows as binary PCD records: positions, normals, the packed
+    colour under the input's key, quality, then every attribute, each of its
+    own type (floats as float32 or float64, little-endian)."""
     cols: list[tuple[str, np.ndarray]] = [(c, cloud.points[:, j]) for j, c in enumerate("xyz")]
     if cloud.normals is not None:
         cols += [(c, cloud.normals[:, j]) for j, c in enumerate(_NORMALS)]
@@ -185,19 +195,21 @@ def write(cloud: Cloud, path: str) -> None:
     data = np.empty(len(cloud), dtype=dt)
     for name, arr in cols:
         data[name] = arr
+    return data
+
+
+def header(dtype: np.dtype, count: int, info: dict) -> bytes:
+    """The PCD 0.7 header of ``count`` binary records of ``dtype`` (the input's
+    viewpoint kept); the records follow it."""
     kinds = {"f": "F", "u": "U", "i": "I"}
-    fields = data.dtype.names
+    fields = dtype.names
     view = " ".join(info.get("viewpoint") or ["0", "0", "0", "1", "0", "0", "0"])
-    header = "\n".join([
+    return "\n".join([
         "# .PCD v0.7 - Point Cloud Data file format (written by pcprep)",
         "VERSION 0.7",
         "FIELDS " + " ".join(fields),
-        "SIZE " + " ".join(str(data.dtype[f].base.itemsize) for f in fields),
-        "TYPE " + " ".join(kinds[data.dtype[f].base.kind] for f in fields),
-        "COUNT " + " ".join(str(data.dtype[f].shape[0] if data.dtype[f].shape else 1)
-                            for f in fields),
-        f"WIDTH {len(cloud)}", "HEIGHT 1", f"VIEWPOINT {view}", f"POINTS {len(cloud)}",
-        "DATA binary", ""])
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(data.tobytes())
+        "SIZE " + " ".join(str(dtype[f].base.itemsize) for f in fields),
+        "TYPE " + " ".join(kinds[dtype[f].base.kind] for f in fields),
+        "COUNT " + " ".join(str(dtype[f].shape[0] if dtype[f].shape else 1) for f in fields),
+        f"WIDTH {count}", "HEIGHT 1", f"VIEWPOINT {view}", f"POINTS {count}",
+        "DATA binary", ""]).encode("ascii")

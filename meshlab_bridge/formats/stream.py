@@ -13,7 +13,8 @@ input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57,
 binary PCD or a binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
 input's header, new results as extra dimensions; a removal copies the kept
 rows' records as they are), to binary PLY (plyfile's header, then the rows;
-the same bytes ``ply.write`` gives the whole result) and to XYZ.  Other pairs
+the same bytes ``ply.write`` gives the whole result), to XYZ and to binary
+PCD.  Other pairs
 go through ``read_cloud``/``write_cloud`` with the cloud in memory (a LAS
 header's scale and offset, written from another format, need the whole
 cloud's extent).  Every write is atomic; a reader refuses what reading the
@@ -188,7 +189,7 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
-    if blocks is None or not (to in (".ply", ".xyz") or
+    if blocks is None or not (to in (".ply", ".xyz", ".pcd") or
                               (to in _STREAMED and _ext(src) in _STREAMED)):
         # no chunked reader or writer for the pair: the cloud in memory, written whole
         from . import write_cloud
@@ -203,6 +204,9 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
         return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
     if to == ".xyz":
         return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
+    if to == ".pcd":
+        count = point_count(src) if keep is None else int(keep.sum())
+        return _write_pcd(_results(spec, blocks(size), fields, keep), dst, count)
     if keep is not None and not spec.scalar_field:
         return _write_kept_records(src, dst, keep, size)
     return _write_las(_results(spec, blocks(size), fields, keep), dst)
@@ -311,6 +315,24 @@ def _write_xyz(outputs, dst: str) -> int:
         for out in outputs:
             text._write_xyz(out, f)
             written += len(out)
+    return written
+
+
+def _write_pcd(outputs, dst: str, count: int) -> int:
+    """Binary PCD block by block: the header (of ``count`` rows) from the first
+    block's record type, which every block shares, then each block's records."""
+    from . import pcd
+
+    written = 0
+    with _temporary(dst) as tmp, open(tmp, "wb") as f:
+        for out in outputs:
+            data = pcd.records(out)
+            if f.tell() == 0:
+                f.write(pcd.header(data.dtype, count, out.meta.get("pcd", {})))
+            f.write(data.tobytes())
+            written += len(out)
+        if written != count:  # the header would lie: nothing is kept
+            raise RuntimeError(f"{dst}: {written} rows written, {count} declared")
     return written
 
 
