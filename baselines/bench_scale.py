@@ -237,7 +237,7 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
                                       scratch=scratch, params=PARAMS.get(name))
                 t_run = time.perf_counter() - t1
                 t2 = time.perf_counter()
-                stream.write_streamed(spec, path, dst, res.fields)
+                stream.write_streamed(spec, path, dst, res.fields, n=n)
                 t_out = time.perf_counter() - t2
                 st, h = res.stats, res.h
                 disk = sum(e.stat().st_size for e in os.scandir(scratch) if e.is_file())

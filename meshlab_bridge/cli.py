@@ -326,7 +326,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
             res = tiles.run_tiled(spec.name, source=source, normals=normals, params=params,
                                   tiles=args.tiles, client=client, scratch=scratch,
                                   worker_io={"on": True, "off": False}.get(args.worker_io))
-        written = stream.write_streamed(spec, src, dst, res.fields)
+        written = stream.write_streamed(spec, src, dst, res.fields, n=n)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
                  written, dst, res.stats["tiles"], res.stats["halo_max"])
     finally:

@@ -142,20 +142,22 @@ def position_chunks(path, size: int = CHUNK):
 
         rows, _ = pcd.binary_rows(path)
         if rows is not None:
-            for s in range(0, len(rows), size):
-                block = rows[s:s + size]
-                yield s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
+            yield from _record_positions(rows, size)
             return
     ply = _ply_mmap(path) if ext == ".ply" else None
     if ply is not None:
-        v = ply["vertex"]
-        for s in range(0, v.count, size):
-            block = v.data[s:s + size]
-            yield s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
+        yield from _record_positions(ply["vertex"].data, size)
         return
     pts = read_cloud(path).points
     for s in range(0, len(pts), size):
         yield s, pts[s:s + size]
+
+
+def _record_positions(rows: np.ndarray, size: int):
+    """``(start, xyz)`` blocks of memory-mapped records with fields x, y, z."""
+    for s in range(0, len(rows), size):
+        block = rows[s:s + size]
+        yield s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
 
 
 def normals_into(path, n: int, out: str):
@@ -165,27 +167,26 @@ def normals_into(path, n: int, out: str):
     where the file has none (nothing written)."""
     path = os.fspath(path)
     blocks = _block_reader(path)
-    if blocks is None:
-        cloud = read_cloud(path)
-        parts = iter([(0, cloud)]) if cloud.normals is not None else None
-    else:
-        peek = blocks(1)
-        first = next(peek, None)
-        peek.close()
-        parts = blocks(CHUNK) if first is not None and first[1].normals is not None else None
-    if parts is None:
-        return None
-    arr = np.lib.format.open_memmap(out, mode="w+", dtype=np.float64, shape=(n, 3))
+    parts = iter([(0, read_cloud(path))]) if blocks is None else blocks(CHUNK)
+    arr = None
     for start, cloud in parts:
+        if cloud.normals is None:  # the first block says: the file has none
+            parts.close()
+            return None
+        if arr is None:
+            arr = np.lib.format.open_memmap(out, mode="w+", dtype=np.float64, shape=(n, 3))
         arr[start:start + len(cloud)] = cloud.normals
-    arr.flush()
+    if arr is not None:
+        arr.flush()
     return arr
 
 
-def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
+def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
+                   n: int | None = None) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
-    result's per-row arrays in input order (``keep_idx`` for a removal).
-    Returns the number of rows written."""
+    result's per-row arrays in input order (``keep_idx`` for a removal); ``n``
+    is the input's row count where the caller has it (``point_count``, which
+    for XYZ reads the file).  Returns the number of rows written."""
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
@@ -199,13 +200,14 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK) -> int:
         out = next(_results(spec, iter([(0, cloud)]), fields, keep))
         write_cloud(out, dst)
         return len(out)
-    keep = _kept(spec, fields, point_count(src))
+    n = point_count(src) if n is None else n
+    keep = _kept(spec, fields, n)
     if to == ".ply":
         return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
     if to == ".xyz":
         return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
     if to == ".pcd":
-        count = point_count(src) if keep is None else int(keep.sum())
+        count = n if keep is None else int(keep.sum())
         return _write_pcd(_results(spec, blocks(size), fields, keep), dst, count)
     if keep is not None and not spec.scalar_field:
         return _write_kept_records(src, dst, keep, size)
