@@ -27,6 +27,7 @@ from pcprep.filters._validation import InvalidParameterError, PointCloudError
 
 from . import registry
 from .convert import MissingAttributeError, load_cloud, save_cloud
+from .tiles import WorkersLostError
 
 log = logging.getLogger("pcprep")
 
@@ -84,8 +85,8 @@ def _add_filter_command(sub, spec) -> None:
     big.add_argument("--scheduler", default=None, metavar="ADDRESS",
                      help="attach to a running Dask scheduler instead of a local cluster")
     big.add_argument("--memory-budget", default=None, metavar="BYTES",
-                     help="memory limit per local worker (e.g. 4GB; default: the machine's "
-                          "memory shared out)")
+                     help="memory limit per local worker (e.g. 4GB, at least 512MiB; "
+                          "default: the machine's memory shared out)")
     big.add_argument("--worker-io", default=None, choices=("auto", "on", "off"),
                      help="on: the workers cut their tiles from the scratch folder and "
                           "write their results into it (every worker on this host; "
@@ -432,7 +433,8 @@ def _dispatch(args, previous) -> int:
             args._run(args)
         else:
             return _cmd_filter(args)
-    except (PointCloudError, InvalidParameterError, MissingAttributeError) as exc:
+    except (PointCloudError, InvalidParameterError, MissingAttributeError,
+            WorkersLostError) as exc:
         sys.stderr.write(f"pcprep: error: {exc}\n")
         return 1
     except OSError as exc:  # unreadable input, unwritable output, missing folder

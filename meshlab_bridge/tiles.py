@@ -41,10 +41,12 @@ duplicate points (found by the first pass's tiles), bad input normals
 (``_checked_normals``; normals are used as the one-piece run uses them).
 
 Engine: ``dask.distributed``.  ``client=None`` starts a ``LocalCluster`` sized
-by ``workers`` and ``memory_budget`` (closed at the end); ``scheduler`` attaches
-to a running one.  A task lost with its worker is run again by the scheduler
-(it writes the same values again: nothing is lost or added), and every core
-row is counted exactly once (checked).
+by ``workers`` and ``memory_budget`` (closed at the end; a budget below
+``MIN_BUDGET`` is refused); ``scheduler`` attaches to a running one.  A task
+lost with its worker is run again by the scheduler (it writes the same values
+again: nothing is lost or added), and every core row is counted exactly once
+(checked); a task that kills every worker it is given (most often a tile too
+big for the budget) ends the run with ``WorkersLostError``, which says so.
 """
 
 from __future__ import annotations
@@ -389,6 +391,16 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     or a new ``LocalCluster`` of ``workers`` processes (default: the cores) with
     ``memory_budget`` per worker (default: the machine's memory shared out);
     what this starts it closes."""
+    local = {k: v for k, v in (("workers", workers), ("memory_budget", memory_budget))
+             if v is not None}
+    if local and (client is not None or scheduler is not None):
+        raise InvalidParameterError(
+            f"{' and '.join(local)} size a local cluster; a running one "
+            f"({'client' if client is not None else 'scheduler'}) has its own workers")
+    if workers is not None and (not isinstance(workers, (int, np.integer))
+                                or isinstance(workers, bool) or workers < 1):
+        raise InvalidParameterError(f"workers must be a positive count, got {workers!r}")
+    budget = worker_budget(memory_budget)
     if client is not None:
         yield client
         return
@@ -405,10 +417,49 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
         logging.getLogger(name).setLevel(logging.WARNING)
     with dask.config.set(_quiet_monitors()), \
             LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
-                         memory_limit=memory_budget or "auto", dashboard_address=":0",
+                         memory_limit=budget, dashboard_address=":0",
                          silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
         log.info("dask: %d local worker(s); dashboard %s", nw, c.dashboard_link)
         yield c
+
+
+#: resident memory of a worker at rest once every filter's modules and compiled
+#: kernels are loaded (measured 215 MB: Python 3.11, NumPy, SciPy, numba, Dask),
+#: rounded up; the memory budget's part that tiles cannot use
+WORKER_AT_REST = 256 << 20
+#: the smallest memory budget per worker ``dask_client`` accepts: a worker at rest
+#: takes half of it, leaving the other half for tiles.  Below about
+#: ``WORKER_AT_REST`` Dask's nanny restarts the idle worker for ever (it stops a
+#: worker at 95 % of its budget, and a worker that dies with no task running is
+#: not counted against any task), so the run would hang instead of failing
+MIN_BUDGET = 2 * WORKER_AT_REST
+
+
+def worker_budget(memory_budget) -> str | int:
+    """``memory_budget`` as ``LocalCluster`` takes it: ``"auto"`` (the
+    machine's memory shared out) for None or ``"auto"``, else bytes, from a
+    positive int or a size Dask reads (``"4GB"``, ``"500MiB"``, ``"2e9"``);
+    refused below ``MIN_BUDGET`` or unreadable, naming the value."""
+    if memory_budget is None or memory_budget == "auto":
+        return "auto"
+    from dask.utils import parse_bytes
+
+    what = f"memory_budget {memory_budget!r}"
+    if isinstance(memory_budget, str):
+        try:
+            value = parse_bytes(memory_budget)
+        except ValueError:
+            raise InvalidParameterError(
+                f"{what}: not a size (give bytes or a size such as 4GB or 500MiB)") from None
+    elif isinstance(memory_budget, (int, np.integer)) and not isinstance(memory_budget, bool):
+        value = int(memory_budget)
+    else:
+        raise InvalidParameterError(f"{what}: not a size (give bytes or a size such as 4GB)")
+    if value < MIN_BUDGET:
+        raise InvalidParameterError(
+            f"{what} per worker is below the {MIN_BUDGET >> 20} MiB a worker needs: about "
+            f"{WORKER_AT_REST >> 20} MiB at rest, the rest for its tiles")
+    return value
 
 
 #: Dask settings of the clusters ``dask_client`` starts, where the user has set
@@ -447,17 +498,45 @@ def _warm_workers(client) -> None:
 
 def tile_target(tiles, client, n: int) -> int:
     """Core points per tile: ``tiles`` as an int, or from the memory budget
-    (``"auto"``): a task's extended region (about twice its core) must fit a
-    worker's memory limit ``BYTES_PER_POINT`` bytes per point."""
+    (``"auto"``): a task's extended region (about twice its core) must fit
+    what a worker's memory limit leaves above ``WORKER_AT_REST``,
+    ``BYTES_PER_POINT`` bytes per point."""
     if tiles is None or tiles == "auto":
-        limits = [w.get("memory_limit") or 0
-                  for w in client.scheduler_info()["workers"].values()]
-        budget = min(limits) if limits and min(limits) > 0 else 4 << 30
-        return int(max(10_000, min(n, budget // (2 * BYTES_PER_POINT))))
+        budget = _worker_limit(client) or 4 << 30
+        room = max(0, budget - WORKER_AT_REST)
+        return int(max(10_000, min(n, room // (2 * BYTES_PER_POINT))))
     t = int(tiles)
     if t < 1:
         raise InvalidParameterError(f"tiles must be 'auto' or a positive count, got {tiles!r}")
     return t
+
+
+def _worker_limit(client) -> int:
+    """The smallest memory limit of the client's workers in bytes; 0 when
+    none has one."""
+    limits = [w.get("memory_limit") or 0 for w in client.scheduler_info()["workers"].values()]
+    return min(limits) if limits and min(limits) > 0 else 0
+
+
+class WorkersLostError(RuntimeError):
+    """A tile's task killed every worker that ran it (Dask's ``KilledWorker``),
+    which usually means a tile needs more memory than a worker's budget."""
+
+
+def _lost_workers(command: str, limit: int, target: int) -> WorkersLostError:
+    """The ``WorkersLostError`` of a ``KilledWorker`` in a run of tiles of
+    ``target`` core points on workers of memory limit ``limit`` (as the run
+    began: the workers being restarted are not listed): what was lost, the
+    likely cause and the remedy."""
+    import dask
+
+    budget = f"{limit / 2**20:.0f} MiB per worker" if limit else "no limit set"
+    tries = dask.config.get("distributed.scheduler.allowed-failures", 3) + 1
+    return WorkersLostError(
+        f"{command}: a tile's task killed each of the {tries} workers that ran it; the "
+        f"usual cause is a tile that needs more memory than a worker has (memory budget: "
+        f"{budget}, tiles of {target} core points): give smaller tiles (--tiles N, "
+        f"tiles=N) or a larger memory budget (--memory-budget)")
 
 
 def _submit(client, fn, *args, **kwargs):
@@ -1002,8 +1081,11 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
                          memory_budget=memory_budget) as cl:
             import time
 
+            from distributed import KilledWorker
+
             t0 = time.perf_counter()
             target = tile_target(tiles, cl, source.n)
+            limit = _worker_limit(cl)
             index = build_index(source, target, scratch, side=grid_side)
             t_index = time.perf_counter() - t0
             log.info("%s: %d points in %d tiles (grid side %.4g)", spec.command, source.n,
@@ -1015,6 +1097,8 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
                 in_pass = _SPACING_IN_PASS.get(spec.command, lambda prm: False)(resolved)
                 h = None if in_pass else _fit_spacing(runner, source, index)
                 out = _FAMILIES[spec.command](runner, source, normals, h, resolved)
+            except KilledWorker as exc:
+                raise _lost_workers(spec.command, limit, target) from exc
             finally:
                 runner.close()
             total = time.perf_counter() - t1

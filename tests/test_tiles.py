@@ -763,3 +763,91 @@ def test_quiet_monitors_leave_what_the_user_configured(monkeypatch):
     quiet = tiles._quiet_monitors()
     assert "distributed.worker.profile.enabled" not in quiet
     assert set(quiet) == set(tiles.QUIET_MONITORS) - {"distributed.worker.profile.enabled"}
+
+
+@pytest.mark.parametrize("budget", ["abc", "4 parsecs", 1.5, True, "100MB", 0, -1, "511MiB"])
+def test_a_memory_budget_that_is_not_a_size_or_too_small_is_refused(budget):
+    # below MIN_BUDGET a worker at rest is over Dask's 95 % line and its nanny
+    # restarts it for ever: the run would hang, so it is refused before it starts
+    with pytest.raises(InvalidParameterError, match="memory_budget"):
+        with tiles.dask_client(memory_budget=budget):
+            pass
+
+
+def test_a_budget_is_read_as_dask_reads_sizes():
+    assert tiles.worker_budget(None) == tiles.worker_budget("auto") == "auto"
+    assert tiles.worker_budget("512MiB") == tiles.MIN_BUDGET == 512 << 20
+    assert tiles.worker_budget("4GB") == 4_000_000_000
+    assert tiles.worker_budget(np.int64(1 << 30)) == 1 << 30
+
+
+@pytest.mark.parametrize("kwargs", [{"workers": 0}, {"workers": -2}, {"workers": "2"},
+                                    {"workers": True},
+                                    {"workers": 2, "scheduler": "tcp://127.0.0.1:1"},
+                                    {"memory_budget": "2GB", "scheduler": "tcp://127.0.0.1:1"},
+                                    {"workers": 2, "client": object()}])
+def test_cluster_sizes_that_cannot_apply_are_refused(kwargs):
+    # a size for a cluster that is not started here would be ignored in silence
+    with pytest.raises(InvalidParameterError, match="workers|memory_budget"):
+        with tiles.dask_client(**kwargs):
+            pass
+
+
+class _Limits:
+    def __init__(self, *limits):
+        self.limits = limits
+
+    def scheduler_info(self):
+        return {"workers": {f"w{i}": {"memory_limit": m} for i, m in enumerate(self.limits)}}
+
+
+def test_auto_tiles_fit_the_smallest_budget_above_a_worker_at_rest():
+    room = (1 << 30) - tiles.WORKER_AT_REST
+    want = room // (2 * tiles.BYTES_PER_POINT)
+    assert tiles.tile_target("auto", _Limits(4 << 30, 1 << 30), 10**9) == want
+    assert tiles.tile_target("auto", _Limits(1 << 30), 50_000) == 50_000  # at most the cloud
+    assert tiles.tile_target("auto", _Limits(tiles.MIN_BUDGET), 10**9) == max(
+        10_000, tiles.WORKER_AT_REST // (2 * tiles.BYTES_PER_POINT))
+
+
+def _die_in_a_task(runner, src, normals, h, prm):
+    runner.client.submit(os._exit, 3, pure=False).result()
+
+
+def test_a_task_that_kills_its_workers_is_named_with_its_remedy(monkeypatch):
+    # Dask gives up on a task after its workers died allowed-failures + 1 times
+    # (KilledWorker); the run says so with the budget and the tile size
+    import dask
+
+    monkeypatch.setitem(tiles._FAMILIES, "outliers", _die_in_a_task)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            tiles.dask_client(workers=1, memory_budget="600MiB") as c:
+        with pytest.raises(tiles.WorkersLostError,
+                           match=r"outliers: .* each of the 1 workers .*600 MiB per worker, "
+                                 r"tiles of 5000 core points"):
+            tiles.run_tiled("outliers", CLOUD, client=c, tiles=5000)
+
+
+def test_cli_names_a_bad_budget_and_a_lost_task_and_writes_nothing(tmp_path, capsys,
+                                                                    monkeypatch):
+    import dask
+    import laspy
+
+    from pcprep.meshlab_bridge.cli import main
+
+    pts = _surface(5000, seed=9, outliers=0)
+    las = laspy.LasData(laspy.LasHeader(point_format=0, version="1.2"))
+    las.header.offsets, las.header.scales = np.floor(pts.min(axis=0)), [1e-4] * 3
+    las.x, las.y, las.z = pts.T
+    src, dst = tmp_path / "in.las", tmp_path / "out.las"
+    las.write(src)
+    assert main(["outliers", str(src), str(dst), "--memory-budget", "2 bananas",
+                 "--quiet"]) == 1
+    assert "memory_budget '2 bananas': not a size" in capsys.readouterr().err
+    monkeypatch.setitem(tiles._FAMILIES, "outliers", _die_in_a_task)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        assert main(["outliers", str(src), str(dst), "--tiles", "1000", "--workers", "1",
+                     "--memory-budget", "600MiB", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "pcprep: error: outliers: a tile's task killed" in err and "Traceback" not in err
+    assert not dst.exists()
