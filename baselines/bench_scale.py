@@ -173,10 +173,11 @@ def _knn16_seconds(path: str) -> float:
 
 
 def _pin_workers(client) -> None:
-    """Give each worker process a core of its own (Linux), so that the threads
-    a filter starts inside one worker (k-d tree queries, numba loops) cannot
-    use the other core: the 1-worker run then measures one core and the
-    speed-up from 1 to 2 workers is the one of adding a core."""
+    """Give each worker process a core of its own (Linux): its tasks run on
+    one thread (``tiles._one_thread``), but without the pin the 1-worker run
+    could still spread its process's other threads (Dask's event loop, the
+    memory map's page faults) over the idle core; with it, the speed-up from
+    1 to 2 workers is the one of adding a core."""
     if not hasattr(os, "sched_setaffinity"):
         return
     cores = sorted(os.sched_getaffinity(0))
@@ -225,7 +226,8 @@ def _one(path: str, dst: str, name: str, workers: int, tile: int) -> dict:
     spec = tiles._spec(registry, name)
     scratch = tempfile.mkdtemp(prefix="pcprep-bench-")
     try:
-        with tiles.dask_client(workers=workers) as client:  # the CLI's local cluster
+        # the CLI's local cluster, one thread per worker: a worker is a core here
+        with tiles.dask_client(workers=workers, threads=1) as client:
             _pin_workers(client)
             with _DriverPeak() as driver:
                 t0 = time.perf_counter()

@@ -31,8 +31,10 @@ install compiles for a few seconds, later processes load the cache.
 
 from __future__ import annotations
 
+import contextvars
 import os
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -49,9 +51,35 @@ ENABLED = HAVE_NUMBA
 
 
 
+#: True in work that must run on one thread (``single_threaded``)
+_ONE_THREAD = contextvars.ContextVar("pcprep_one_thread", default=False)
+
+
+@contextmanager
+def single_threaded():
+    """Run the row kernels and the k-d tree queries of this context on one
+    thread.  The tile tasks run so on Dask workers, where each worker thread
+    is meant to keep one core busy (Dask's nannies give their workers one BLAS
+    and OpenMP thread for the same reason): a task that started threads of its
+    own would share its core with them and with the other workers' tasks."""
+    token = _ONE_THREAD.set(True)
+    try:
+        yield
+    finally:
+        _ONE_THREAD.reset(token)
+
+
+def tree_workers() -> int:
+    """``workers=`` for scipy's k-d tree queries: every core, or one inside
+    ``single_threaded``."""
+    return 1 if _ONE_THREAD.get() else -1
+
+
 def threads() -> int:
-    """Threads for the row kernels: the cores this process may run on (its
-    affinity, so a worker pinned to one core runs one), at most 4."""
+    """Threads for the row kernels: one inside ``single_threaded``, else the
+    cores this process may run on (its affinity), at most 4."""
+    if _ONE_THREAD.get():
+        return 1
     try:
         n = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux

@@ -75,11 +75,11 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
                   (slice(s, s + step) for s in range(0, len(q), step)))
         with progress.step(f"{k}-NN query", len(q)) as advance:
             for rows in slices:
-                d, i = tree.query(q[rows], k=kk, workers=-1)
+                d, i = tree.query(q[rows], k=kk, workers=_kernels.tree_workers())
                 dist[rows], idx[rows] = d.reshape(-1, kk), i.reshape(-1, kk)
                 advance(i.size // kk)
     else:
-        dist, idx = tree.query(q, k=kk, workers=-1)
+        dist, idx = tree.query(q, k=kk, workers=_kernels.tree_workers())
     if kk == 1:
         dist, idx = dist.reshape(-1, 1), idx.reshape(-1, 1)
     if not include_self and query is None:
@@ -148,7 +148,7 @@ def spacing_rows(points: np.ndarray, k: int = SPACING_K, *,
     out = np.empty(len(points))  # noqa: NPY-empty -- every row written below
     with progress.step(f"{k}-NN spacing", len(points)) as advance:
         for rows in leaf_chunks(tree, 4 * CHUNK):
-            d, _ = tree.query(points[rows], k=k + 1, workers=-1)
+            d, _ = tree.query(points[rows], k=k + 1, workers=_kernels.tree_workers())
             out[rows] = d[:, 1:].mean(axis=1)
             advance(len(rows))
     return out

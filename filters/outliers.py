@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _kernels
 from ._params import Param, validate_params
 from ._validation import as_points, check_spread
 from .neighbors import SPACING_K, build_tree, centered, knn, spacing_from_rows
@@ -116,7 +117,7 @@ def remove_outliers(points, normals=None, *, method: str = "statistical", k: int
         threshold = float(score.mean() + std_ratio * score.std())
         out = score > threshold
     else:
-        counts = tree.query_ball_point(pts, r=radius * h, return_length=True, workers=-1)
+        counts = tree.query_ball_point(pts, r=radius * h, return_length=True, workers=_kernels.tree_workers())
         score = np.asarray(counts, dtype=np.float64) - 1.0  # the point itself
         threshold = float(min_neighbors)
         out = score < threshold

@@ -170,7 +170,7 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     kth = np.zeros(n)
     rows = np.zeros(n)
     for at in leaf_chunks(tree, 4 * CHUNK):
-        d, j = tree.query(points[at], k=k, workers=-1)
+        d, j = tree.query(points[at], k=k, workers=_kernels.tree_workers())
         d, j = d.reshape(len(at), k), j.reshape(len(at), k)
         idx[at] = j
         dist[at] = d

@@ -212,7 +212,7 @@ def _ball_edges(P, rows, rank, rho, tree):
     src_l, dst_l = [], []
     for s0 in range(0, rows.size, CHUNK // 4):
         tt = rows[s0:s0 + CHUNK // 4]
-        balls = tree.query_ball_point(P[tt], rho[tt], workers=-1)
+        balls = tree.query_ball_point(P[tt], rho[tt], workers=_kernels.tree_workers())
         lens = np.fromiter(map(len, balls), dtype=np.int64, count=len(balls))
         bs = np.repeat(tt, lens)
         bd = np.fromiter(chain.from_iterable(balls), dtype=np.int64,
@@ -345,7 +345,7 @@ def _knn32(P, k, tree):
     gd = np.zeros((n, k), dtype=np.float32)
     gi = np.zeros((n, k), dtype=np.int32)
     for at in leaf_chunks(tree, CHUNK):
-        d, i = tree.query(P[at], k=k, workers=-1)
+        d, i = tree.query(P[at], k=k, workers=_kernels.tree_workers())
         gd[at], gi[at] = d.reshape(len(at), k), i.reshape(len(at), k)
     return gd, gi
 

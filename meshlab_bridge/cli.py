@@ -81,7 +81,9 @@ def _add_filter_command(sub, spec) -> None:
                      help="run tile by tile: N core points per tile, or auto (from the "
                           "memory budget); the result equals the one-piece run's")
     big.add_argument("--workers", default=None, type=int, metavar="K",
-                     help="worker processes of the local Dask cluster (default: the cores)")
+                     help="worker processes of the local Dask cluster (default: the cores), "
+                          "the cores shared out among them as threads, each running one "
+                          "tile at a time on one core")
     big.add_argument("--scheduler", default=None, metavar="ADDRESS",
                      help="attach to a running Dask scheduler instead of a local cluster")
     big.add_argument("--memory-budget", default=None, metavar="BYTES",

@@ -386,20 +386,23 @@ def _cut(xyz, order, spans, blo, bhi):
 
 @contextmanager
 def dask_client(client=None, *, workers: int | None = None, scheduler: str | None = None,
-                memory_budget: str | int | None = None):
+                memory_budget: str | int | None = None, threads: int | None = None):
     """The client to run on: ``client`` as given, one attached to ``scheduler``,
     or a new ``LocalCluster`` of ``workers`` processes (default: the cores) with
-    ``memory_budget`` per worker (default: the machine's memory shared out);
-    what this starts it closes."""
-    local = {k: v for k, v in (("workers", workers), ("memory_budget", memory_budget))
-             if v is not None}
+    ``memory_budget`` per worker (default: the machine's memory shared out)
+    and ``threads`` each (default: the cores shared out among them; each
+    thread runs one tile task on one core, ``_one_thread``); what this starts
+    it closes."""
+    local = {k: v for k, v in (("workers", workers), ("memory_budget", memory_budget),
+                               ("threads", threads)) if v is not None}
     if local and (client is not None or scheduler is not None):
         raise InvalidParameterError(
             f"{' and '.join(local)} size a local cluster; a running one "
             f"({'client' if client is not None else 'scheduler'}) has its own workers")
-    if workers is not None and (not isinstance(workers, (int, np.integer))
-                                or isinstance(workers, bool) or workers < 1):
-        raise InvalidParameterError(f"workers must be a positive count, got {workers!r}")
+    for name, v in (("workers", workers), ("threads", threads)):
+        if v is not None and (not isinstance(v, (int, np.integer)) or isinstance(v, bool)
+                              or v < 1):
+            raise InvalidParameterError(f"{name} must be a positive count, got {v!r}")
     budget = worker_budget(memory_budget)
     if client is not None:
         yield client
@@ -413,13 +416,15 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
             yield c
         return
     nw = workers or os.cpu_count() or 1
+    per = threads or max(1, (os.cpu_count() or 1) // nw)  # the cores shared out, as Dask does
     for name in ("distributed", "tornado"):  # their lifecycle chatter is not ours to print
         logging.getLogger(name).setLevel(logging.WARNING)
     with dask.config.set(_quiet_monitors()), \
-            LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
+            LocalCluster(n_workers=nw, threads_per_worker=per, processes=True,
                          memory_limit=budget, dashboard_address=":0",
                          silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
-        log.info("dask: %d local worker(s); dashboard %s", nw, c.dashboard_link)
+        log.info("dask: %d local worker(s) of %d thread(s); dashboard %s", nw, per,
+                 c.dashboard_link)
         yield c
 
 
@@ -499,16 +504,23 @@ def _warm_workers(client) -> None:
 def tile_target(tiles, client, n: int) -> int:
     """Core points per tile: ``tiles`` as an int, or from the memory budget
     (``"auto"``): a task's extended region (about twice its core) must fit
-    what a worker's memory limit leaves above ``WORKER_AT_REST``,
+    its share of what a worker's memory limit leaves above ``WORKER_AT_REST``
+    (a worker runs as many tasks at once as it has threads),
     ``BYTES_PER_POINT`` bytes per point."""
     if tiles is None or tiles == "auto":
-        budget = _worker_limit(client) or 4 << 30
-        room = max(0, budget - WORKER_AT_REST)
+        rooms = [((w.get("memory_limit") or 4 << 30) - WORKER_AT_REST) // w.get("nthreads", 1)
+                 for w in client.scheduler_info()["workers"].values()]
+        room = max(0, min(rooms, default=(4 << 30) - WORKER_AT_REST))
         return int(max(10_000, min(n, room // (2 * BYTES_PER_POINT))))
     t = int(tiles)
     if t < 1:
         raise InvalidParameterError(f"tiles must be 'auto' or a positive count, got {tiles!r}")
     return t
+
+
+def _slots(client) -> int:
+    """Tasks the client's workers run at once: their threads."""
+    return sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
 
 
 def _worker_limit(client) -> int:
@@ -546,13 +558,26 @@ def _submit(client, fn, *args, **kwargs):
     beforehand: a scattered array dies with its worker, while a task that
     holds its data can be run again elsewhere, which is how a lost worker
     costs nothing.  Dask's warning about large task
-    graphs is therefore expected here and not shown."""
+    graphs is therefore expected here and not shown.  The task runs on one
+    thread (``_one_thread``) and keeps ``fn``'s name in Dask's dashboard."""
+    import uuid
     import warnings
 
+    key = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex}"
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Sending large graph",
                                 category=UserWarning)
-        return client.submit(fn, *args, pure=False, **kwargs)
+        return client.submit(_one_thread, fn, *args, key=key, pure=False, **kwargs)
+
+
+def _one_thread(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with the kernels and tree queries on one thread
+    (``_kernels.single_threaded``): on a worker, a task keeps one core busy,
+    the worker's threads being the parallelism."""
+    from pcprep.filters._kernels import single_threaded
+
+    with single_threaded():
+        return fn(*args, **kwargs)
 
 
 class Stored:
@@ -890,7 +915,7 @@ class _Runner:
         seen = self.store(f"seen-{self.passes}", self.src.n, np.int8)
         queue = list(cells)
         direct = set()  # cells a worker away from the scratch folder sent back
-        limit = IN_FLIGHT * max(1, len(self.client.scheduler_info()["workers"]))
+        limit = IN_FLIGHT * max(1, _slots(self.client))
         futures = as_completed()
         meta = {}
         with progress.step(f"{label} tiles", len(cells)) as advance:
@@ -1554,7 +1579,7 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
     read = (runner.handle(src), how)
     writes = [runner.handle(a) for a in writes]
     [model] = client.scatter([shared], broadcast=True)
-    nw = max(1, len(client.scheduler_info()["workers"]))
+    nw = max(1, _slots(client))
     step = _chunk_rows(n, nw)
     starts = list(range(0, n, step))
     limit = IN_FLIGHT * nw

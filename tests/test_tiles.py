@@ -785,26 +785,32 @@ def test_a_budget_is_read_as_dask_reads_sizes():
                                     {"workers": True},
                                     {"workers": 2, "scheduler": "tcp://127.0.0.1:1"},
                                     {"memory_budget": "2GB", "scheduler": "tcp://127.0.0.1:1"},
-                                    {"workers": 2, "client": object()}])
+                                    {"workers": 2, "client": object()},
+                                    {"threads": 0}, {"threads": 2.0},
+                                    {"threads": 2, "scheduler": "tcp://127.0.0.1:1"}])
 def test_cluster_sizes_that_cannot_apply_are_refused(kwargs):
     # a size for a cluster that is not started here would be ignored in silence
-    with pytest.raises(InvalidParameterError, match="workers|memory_budget"):
+    with pytest.raises(InvalidParameterError, match="workers|memory_budget|threads"):
         with tiles.dask_client(**kwargs):
             pass
 
 
 class _Limits:
-    def __init__(self, *limits):
-        self.limits = limits
+    def __init__(self, *limits, threads=1):
+        self.limits, self.threads = limits, threads
 
     def scheduler_info(self):
-        return {"workers": {f"w{i}": {"memory_limit": m} for i, m in enumerate(self.limits)}}
+        return {"workers": {f"w{i}": {"memory_limit": m, "nthreads": self.threads}
+                            for i, m in enumerate(self.limits)}}
 
 
 def test_auto_tiles_fit_the_smallest_budget_above_a_worker_at_rest():
     room = (1 << 30) - tiles.WORKER_AT_REST
     want = room // (2 * tiles.BYTES_PER_POINT)
     assert tiles.tile_target("auto", _Limits(4 << 30, 1 << 30), 10**9) == want
+    # a worker of two threads runs two tiles at once in its budget
+    assert tiles.tile_target("auto", _Limits(1 << 30, threads=2), 10**9) == room // 2 // (
+        2 * tiles.BYTES_PER_POINT)
     assert tiles.tile_target("auto", _Limits(1 << 30), 50_000) == 50_000  # at most the cloud
     assert tiles.tile_target("auto", _Limits(tiles.MIN_BUDGET), 10**9) == max(
         10_000, tiles.WORKER_AT_REST // (2 * tiles.BYTES_PER_POINT))
@@ -851,3 +857,31 @@ def test_cli_names_a_bad_budget_and_a_lost_task_and_writes_nothing(tmp_path, cap
     err = capsys.readouterr().err
     assert "pcprep: error: outliers: a tile's task killed" in err and "Traceback" not in err
     assert not dst.exists()
+
+
+def _thread_use():
+    from pcprep.filters import _kernels
+
+    return _kernels.threads(), _kernels.tree_workers()
+
+
+def test_tile_tasks_run_on_one_thread_each(client):
+    # a worker's threads are the parallelism: a task that started threads of
+    # its own (row kernels, k-d tree queries) would crowd the other workers
+    assert tiles._submit(client, _thread_use).result() == (1, 1)
+    assert _thread_use()[1] == -1  # the driver's own steps use every core
+
+
+def test_a_worker_of_two_threads_runs_two_tiles_at_once_with_the_same_result():
+    # the tasks of one worker process share its memory maps and its module
+    # state; the result is still the one-piece run's
+    from pcprep.filters.sharp import detect_sharp_features
+
+    ref = detect_sharp_features(CLOUD)
+    with tiles.dask_client(workers=1, threads=2) as c:
+        assert tiles._slots(c) == 2
+        res = tiles.run_tiled("features", CLOUD, client=c, tiles=2500)
+        out = tiles.run_tiled("outliers", CLOUD, client=c, tiles=2500)
+    assert res.stats["tiles"] >= 6
+    assert np.array_equal(res.fields["mask"], ref.mask) and ref.mask.any()
+    assert np.array_equal(out.fields["removed_idx"], remove_outliers(CLOUD).removed_idx)
