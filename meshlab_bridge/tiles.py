@@ -1042,7 +1042,8 @@ class TiledResult:
 def run_tiled(name: str, points=None, normals=None, *, source: Source | None = None,
               params: dict | None = None, client=None, tiles="auto",
               workers: int | None = None, scheduler: str | None = None,
-              memory_budget=None, scratch: str | None = None, on_result=None,
+              memory_budget=None, threads: int | None = None,
+              scratch: str | None = None, on_result=None,
               grid_side: float | None = None, worker_io: bool | None = None) -> TiledResult:
     """Run registered filter ``name`` tile by tile on Dask; the result of every
     row is the one a run over the whole cloud gives (see the module docstring).
@@ -1062,7 +1063,8 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         The filter's parameters (checked as the filter checks them).
     client : dask.distributed.Client, optional
         Run on this client; else ``scheduler`` (address) or a new local cluster
-        of ``workers`` processes with ``memory_budget`` each.
+        of ``workers`` processes with ``memory_budget`` and ``threads`` each
+        (``dask_client``).
     tiles : "auto" or int
         Core points per tile (``auto``: from the memory budget).
     scratch : str, optional
@@ -1103,7 +1105,7 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         if normals is not None:
             normals = _checked_normals(spec, normals, source.n)
         with dask_client(client, workers=workers, scheduler=scheduler,
-                         memory_budget=memory_budget) as cl:
+                         memory_budget=memory_budget, threads=threads) as cl:
             import time
 
             from distributed import KilledWorker
