@@ -83,7 +83,7 @@ SHORT_MARGIN = 1.02
 #: bytes per extended point a tile's task needs at most (denoise: neighbour lists,
 #: its state and the chunk buffers), for ``tiles="auto"``
 BYTES_PER_POINT = 4_000
-#: tasks in flight per worker (the driver holds their inputs)
+#: tasks in flight per worker thread (the driver holds their inputs)
 IN_FLIGHT = 2
 #: bytes of a stored array's pages one scattered read or write may hold mapped
 #: at once (``_gather``, ``_scatter``)
@@ -1548,9 +1548,10 @@ CHUNKS_PER_WORKER = 4
 
 
 def _chunk_rows(n: int, workers: int) -> int:
-    """Rows per chunk of ``_map_rows``: at most ``CHUNK // 4`` (the driver
-    holds ``IN_FLIGHT`` chunks per worker), and few enough that every worker
-    gets ``CHUNKS_PER_WORKER`` of them, so that no worker idles while another
+    """Rows per chunk of ``_map_rows`` for ``workers`` worker threads
+    (``_slots``): at most ``CHUNK // 4`` (the driver holds ``IN_FLIGHT``
+    chunks per thread), and few enough that every thread gets
+    ``CHUNKS_PER_WORKER`` of them, so that no worker idles while another
     codes the last big chunk (4 chunks of a 1M cloud went 3 to 1 on 2
     workers), and at least 4096 rows, where a task's overhead stays small.
 
@@ -1565,8 +1566,8 @@ def _map_rows(runner: _Runner, label: str, fn, read, shared, arg, writes) -> Non
     ``read[0]`` (``_read_rows``: rows, or a (d, m) block of columns for
     ``read[1] == "columns"``), each part (or tuple of parts) written into the
     stored arrays ``writes`` at ``s0``; run on the workers with ``shared`` (a
-    model or a dictionary) broadcast once, ``IN_FLIGHT`` chunks per worker in
-    flight.  Where the workers share the scratch folder they read and write
+    model or a dictionary) broadcast once, ``IN_FLIGHT`` chunks per worker
+    thread in flight.  Where the workers share the scratch folder they read and write
     the rows themselves (``_rows_task``), else the driver does.  The pass's
     wall time goes to ``runner.times[label]``, the driver's CPU time in it to
     ``runner.cpu[label]``."""
