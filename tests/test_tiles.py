@@ -885,3 +885,29 @@ def test_a_worker_of_two_threads_runs_two_tiles_at_once_with_the_same_result():
     assert res.stats["tiles"] >= 6
     assert np.array_equal(res.fields["mask"], ref.mask) and ref.mask.any()
     assert np.array_equal(out.fields["removed_idx"], remove_outliers(CLOUD).removed_idx)
+
+
+@pytest.mark.parametrize("address", ["notanaddress", "tcp://", "tcp://host:port", 8786])
+def test_a_scheduler_address_that_is_not_one_is_refused_by_name(address):
+    with pytest.raises(InvalidParameterError, match=f"scheduler {address!r}"):
+        with tiles.dask_client(scheduler=address):
+            pass
+
+
+def _rss() -> int:
+    import psutil
+
+    return psutil.Process().memory_info().rss
+
+
+def test_a_worker_at_rest_fits_the_allowance_the_budget_keeps_for_it(client):
+    # MIN_BUDGET and the auto tile size keep WORKER_AT_REST for a worker's own
+    # modules and kernels: after every filter has run on them, the workers
+    # hold less than that (227 MiB measured)
+    for name in ("denoise", "saliency", "features", "holes", "outliers"):
+        tiles.run_tiled(name, CLOUD[:6000], client=client, tiles=2000,
+                        params=DENOISE if name == "denoise" else None)
+    tiles.run_tiled("simplify", CLOUD[:6000], client=client, tiles=2000,
+                    params={"ratio": 0.5})
+    rest = client.run(_rss)
+    assert len(rest) == 2 and max(rest.values()) < tiles.WORKER_AT_REST, rest
