@@ -76,10 +76,15 @@ def _add_filter_command(sub, spec) -> None:
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _add_scale_options(p, "the result equals the one-piece run's")
+    p.set_defaults(_spec=spec)
+
+
+def _add_scale_options(p, same: str) -> None:
     big = p.add_argument_group("large clouds (tiles with a halo on Dask; needs pcprep[scale])")
     big.add_argument("--tiles", default=None, type=_tiles, metavar="auto|N",
                      help="run tile by tile: N core points per tile, or auto (from the "
-                          "memory budget); the result equals the one-piece run's")
+                          f"memory budget); {same}")
     big.add_argument("--workers", default=None, type=int, metavar="K",
                      help="worker processes of the local Dask cluster (default: the cores), "
                           "the cores shared out among them as threads, each running one "
@@ -94,7 +99,6 @@ def _add_filter_command(sub, spec) -> None:
                           "write their results into it (every worker on this host; "
                           "checked); off: the driver does, for any cluster; auto "
                           "(default): on wherever possible.  Same results either way")
-    p.set_defaults(_spec=spec)
 
 
 def _tiles(text: str):
@@ -120,6 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     info = sub.add_parser("info", help="point count, spacing h, bounding box, attributes")
     info.add_argument("input")
+    info.add_argument("--quiet", action="store_true", help="no progress messages")
+    _add_scale_options(info, "the file is read in blocks, never whole (LAS, LAZ, binary "
+                             "PLY and PCD, XYZ, E57)")
     sub.add_parser("filters", help="list the filters and their parameters")
     run = sub.add_parser("run", help="run a MeshLab filter script (.mlx) that may mix "
                                      "MeshLab's and pcprep's filters")
@@ -139,45 +146,121 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_info(path: str) -> None:
-    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated,
-                                          spacing_from_rows, spacing_rows)
+    from pcprep.filters.neighbors import SPACING_K, spacing_rows
 
     from .cloud import describe
 
     cloud = load_cloud(path, nonfinite="drop")
     pts = cloud.points
     dropped = cloud.meta.get("dropped_rows", ())
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    lines = [f"file: {path}", f"format: {cloud.meta.get('format', '?')}",
-             f"points: {len(pts) + len(dropped)}"]
+    rows = spacing_rows(pts) if len(pts) > SPACING_K else None
+    extent = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else None
+    _print_info(path, cloud.meta, len(pts) + len(dropped), dropped, extent, rows,
+                describe(cloud), None if cloud.faces is None else len(cloud.faces))
+
+
+def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
+    """What ``pcprep info`` prints, from the file's ``meta``, its row count,
+    the non-finite rows left out, the finite rows' bounding box, their
+    spacing rows (``neighbors.spacing_rows``) and ``describe``'s fields."""
+    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated,
+                                          spacing_from_rows)
+
+    lines = [f"file: {path}", f"format: {meta.get('format', '?')}", f"points: {n}"]
     if len(dropped):
         shown = ", ".join(map(str, dropped[:5])) + (", …" if len(dropped) > 5 else "")
         lines.append(f"non-finite points: {len(dropped)} (rows {shown})")
     else:
         lines.append("non-finite points: 0")
-    if cloud.faces is not None:
-        lines.append(f"faces: {len(cloud.faces)}")
-    if len(pts) > SPACING_K:
-        rows = spacing_rows(pts)
+    if faces is not None:
+        lines.append(f"faces: {faces}")
+    if rows is not None:
         iso = int(np.count_nonzero(isolated(rows)))
         lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "
                      f"left out): {spacing_from_rows(rows):.6g}")
         lines.append(f"isolated points (mean neighbour distance > {ISOLATED_FACTOR:g}x the "
                      f"median; pcprep outliers removes them): {iso}")
-    lines.append(f"bounding box min: {' '.join(f'{v:.17g}' for v in lo)}")
-    lines.append(f"bounding box max: {' '.join(f'{v:.17g}' for v in hi)}")
-    lines.append(f"diagonal: {float(np.linalg.norm(hi - lo)):.6g}")
-    if "crs" in cloud.meta:
-        lines.append(f"CRS: {cloud.meta['crs']}")
-    header = cloud.meta.get("las_header")
+    if extent is not None:
+        lo, hi = extent
+        lines.append(f"bounding box min: {' '.join(f'{v:.17g}' for v in lo)}")
+        lines.append(f"bounding box max: {' '.join(f'{v:.17g}' for v in hi)}")
+        lines.append(f"diagonal: {float(np.linalg.norm(hi - lo)):.6g}")
+    if "crs" in meta:
+        lines.append(f"CRS: {meta['crs']}")
+    header = meta.get("las_header")
     if header is not None:
         lines.append(f"LAS {header.version}, point format {header.point_format.id}, "
-                     f"scale {list(header.scales)}, offset {list(header.offsets)}, "
+                     f"scale {[float(v) for v in header.scales]}, "
+                     f"offset {[float(v) for v in header.offsets]}, "
                      f"{len(header.vlrs)} VLR(s)")
     lines.append("attributes:")
-    for name, dtype, rng in describe(cloud):
+    for name, dtype, rng in fields:
         lines.append(f"  {name:<24} {dtype:<10} {rng}")
     sys.stdout.write("\n".join(lines) + "\n")
+
+
+def _cmd_info_tiled(args) -> None:
+    """``pcprep info`` of a cloud larger than memory: one pass over the
+    file's blocks for the counts, the non-finite rows, the bounding box and
+    every field's range (``FieldRanges``), the finite positions streamed into
+    a scratch memory map, and the spacing rows by tiles on Dask
+    (``tiles.spacing_rows``).  Formats read whole are read whole."""
+    import shutil
+    import tempfile
+
+    from pcprep.filters.neighbors import SPACING_K
+
+    from . import tiles
+    from .cloud import FieldRanges
+    from .formats import stream
+
+    path = args.input
+    _require_dask("info")
+    blocks = stream._block_reader(path)
+    if blocks is None:
+        log.info("info: %s is read whole (its format is not read in blocks)", path)
+        _cmd_info(path)
+        return
+    meta, n, dropped, ranges = {}, 0, [], FieldRanges()
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for start, block in blocks(stream.CHUNK):
+        meta, n = meta or block.meta, start + len(block)
+        bad = ~np.isfinite(block.points).all(axis=1)
+        if bad.any():
+            dropped.extend((start + np.flatnonzero(bad)).tolist())
+            block = block.subset(np.flatnonzero(~bad), keep_faces=False)
+        ranges.add(block)
+        if len(block):
+            lo = np.minimum(lo, block.points.min(axis=0))
+            hi = np.maximum(hi, block.points.max(axis=0))
+    finite = n - len(dropped)
+    scratch = tempfile.mkdtemp(prefix="pcprep-info-")
+    try:
+        rows = None
+        if finite > SPACING_K:
+            with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
+                                   memory_budget=args.memory_budget) as client:
+                src = tiles.ingest(_finite_chunks(path, dropped), finite, scratch)
+                rows = tiles.spacing_rows(src, client, scratch, args.tiles)
+        _print_info(path, meta, n, dropped, (lo, hi) if finite else None, rows,
+                    ranges.rows(), None)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _finite_chunks(path: str, dropped: list):
+    """The file's position blocks without the rows in ``dropped`` (ascending),
+    numbered anew from 0."""
+    from .formats import stream
+
+    gone = np.asarray(dropped, dtype=np.int64)
+    out = 0
+    for start, xyz in stream.position_chunks(path):
+        lo, hi = np.searchsorted(gone, [start, start + len(xyz)])
+        if hi > lo:
+            xyz = np.delete(xyz, gone[lo:hi] - start, axis=0)
+        yield out, xyz
+        out += len(xyz)
 
 
 def _cmd_filters() -> None:
@@ -291,6 +374,15 @@ def _tiled(args) -> bool:
                for a in ("tiles", "workers", "scheduler", "memory_budget", "worker_io"))
 
 
+def _require_dask(command: str) -> None:
+    try:
+        import distributed  # noqa: F401
+    except ImportError as exc:
+        raise InvalidParameterError(
+            f"{command}: --tiles/--workers/--scheduler need Dask: pip install "
+            "'pcprep[scale]'") from exc
+
+
 def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     """``_filter_file`` for a cloud larger than memory: positions (and, for a
     filter that uses them, the file's normals) streamed into scratch memory
@@ -302,12 +394,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     from . import formats, tiles
     from .formats import stream
 
-    try:
-        import distributed  # noqa: F401
-    except ImportError as exc:
-        raise InvalidParameterError(
-            f"{spec.command}: --tiles/--workers/--scheduler need Dask: pip install "
-            "'pcprep[scale]'") from exc
+    _require_dask(spec.command)
     if args.drop_nonfinite:
         raise InvalidParameterError(f"{spec.command}: --drop-nonfinite is not available "
                                     "with tiles")
@@ -425,7 +512,9 @@ def _dispatch(args, previous) -> int:
     from pcprep.filters import progress as _progress
 
     try:
-        if args.command == "info":
+        if args.command == "info" and _tiled(args):
+            _cmd_info_tiled(args)
+        elif args.command == "info":
             _cmd_info(args.input)
         elif args.command == "filters":
             _cmd_filters()

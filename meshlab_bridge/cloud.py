@@ -74,24 +74,51 @@ class Cloud:
 
 def describe(cloud: Cloud) -> list[tuple[str, str, str]]:
     """``(name, dtype, range)`` for every per-point field of ``cloud``."""
-    rows = [("x y z", "float64", _range(cloud.points))]
-    for name, arr in (("normals", cloud.normals), ("colors", cloud.colors),
-                      ("quality", cloud.quality)):
-        if arr is not None:
-            rows.append((name, str(arr.dtype), _range(arr)))
-    for name, arr in cloud.attributes.items():
-        rows.append((name, str(arr.dtype) + ("" if arr.ndim == 1 else f" x{arr.shape[1]}"),
-                     _range(arr)))
-    return rows
+    ranges = FieldRanges()
+    ranges.add(cloud)
+    return ranges.rows()
 
 
-def _range(arr: np.ndarray) -> str:
-    a = np.asarray(arr)
-    if a.size == 0:
-        return "empty"
-    if a.dtype == bool:
-        return f"{int(a.sum())} true of {a.size}"
-    fin = a[np.isfinite(a)] if a.dtype.kind == "f" else a
-    if fin.size == 0:
-        return "no finite value"
-    return f"[{fin.min():.6g}, {fin.max():.6g}]"
+class FieldRanges:
+    """:func:`describe` of a cloud read in blocks: each field's dtype and the
+    range of its finite values (a count of true values for a mask), gathered
+    block by block; the same rows as :func:`describe` of the whole cloud."""
+
+    def __init__(self):
+        self._fields: dict = {}  # name -> [dtype text, lo, hi, trues (masks), size]
+
+    def add(self, cloud: Cloud) -> None:
+        fields = [("x y z", cloud.points, "")]
+        fields += [(name, arr, "") for name, arr in (("normals", cloud.normals),
+                                                    ("colors", cloud.colors),
+                                                    ("quality", cloud.quality))
+                   if arr is not None]
+        fields += [(name, arr, "" if arr.ndim == 1 else f" x{arr.shape[1]}")
+                   for name, arr in cloud.attributes.items()]
+        for name, arr, shape in fields:
+            a = np.asarray(arr)
+            got = self._fields.setdefault(
+                name, [str(a.dtype) + shape, None, None, 0 if a.dtype == bool else None, 0])
+            got[4] += a.size
+            if a.dtype == bool:
+                got[3] += int(a.sum())
+                continue
+            fin = a[np.isfinite(a)] if a.dtype.kind == "f" else a
+            if fin.size:
+                lo, hi = fin.min(), fin.max()
+                got[1] = lo if got[1] is None else min(got[1], lo)
+                got[2] = hi if got[2] is None else max(got[2], hi)
+
+    def rows(self) -> list[tuple[str, str, str]]:
+        out = []
+        for name, (dtype, lo, hi, trues, size) in self._fields.items():
+            if size == 0:
+                text = "empty"
+            elif trues is not None:
+                text = f"{trues} true of {size}"
+            elif lo is None:
+                text = "no finite value"
+            else:
+                text = f"[{lo:.6g}, {hi:.6g}]"
+            out.append((name, dtype, text))
+        return out

@@ -825,7 +825,7 @@ class _Runner:
     one machine, out of the per-row work."""
 
     def __init__(self, client, src: Source, index: TileIndex, scratch: str, on_result=None,
-                 shared: bool | None = None, func: str = "run_tiled"):
+                 shared: bool | None = None, func: str | None = "run_tiled"):
         self.client, self.src, self.index, self.func = client, src, index, func
         self.scratch, self.on_result = scratch, on_result
         mapped = isinstance(index.xyz, np.memmap) and isinstance(index.order, np.memmap)
@@ -916,7 +916,7 @@ class _Runner:
         width = {c: max(halo, self.halo.get(c, 0.0)) for c in cells}
         floor = 0.0  # the widest halo a tile of this pass proved too narrow, grown
         self.passes += 1
-        if self.passes == 1:  # the first pass also looks for duplicate points
+        if self.passes == 1 and self.func:  # a filter's first pass also looks for duplicates
             fn = functools.partial(_with_duplicate_check, fn)
             args = dict(args, caller=self.func)
         seen = self.store(f"seen-{self.passes}", self.src.n, np.int8)
@@ -1231,11 +1231,35 @@ def _spec(registry, name: str):
 
 def _fit_spacing(runner: _Runner, src: Source, index: TileIndex) -> float:
     """h over the whole cloud from every row's mean 6-NN distance (pass 1)."""
+    return _h_from_rows(_spacing_pass(runner, src, index))
+
+
+def _spacing_pass(runner: _Runner, src: Source, index: TileIndex) -> np.ndarray:
+    """Every row's mean distance to its ``SPACING_K`` nearest neighbours, by
+    tiles (a first halo of a twentieth of a cell, widened where it falls short)."""
     rows6 = runner.store("spacing", src.n)
     runner.run("spacing", _spacing_tile, _first_halo(index),
                {"centre": src.centre, "n_total": src.n}, [(rows6, "rows", "ext")])
     runner.halo.clear()
-    return _h_from_rows(rows6)
+    return rows6
+
+
+def spacing_rows(source: Source, client, scratch: str, tiles="auto") -> np.ndarray:
+    """Every row of ``source``'s mean distance to its ``SPACING_K`` nearest
+    neighbours (the rows of ``neighbors.spacing_from_rows``: h and the
+    isolated points), by tiles on ``client``, as a memory map in ``scratch``:
+    the filters' first pass on its own, for ``pcprep info`` on a cloud larger
+    than memory.  Each row's value is the one-piece ``neighbors.spacing_rows``
+    value up to rounding (the tiles work about the box centre); duplicate
+    points are not refused (they only make rows small)."""
+    if source.n <= SPACING_K:
+        raise PointCloudError(f"spacing: needs more than {SPACING_K} points, got {source.n}")
+    index = build_index(source, tile_target(tiles, client, source.n), scratch)
+    runner = _Runner(client, source, index, scratch, func=None)
+    try:
+        return _spacing_pass(runner, source, index)
+    finally:
+        runner.close()
 
 
 def _first_halo(index: TileIndex) -> float:

@@ -911,3 +911,53 @@ def test_a_worker_at_rest_fits_the_allowance_the_budget_keeps_for_it(client):
                     params={"ratio": 0.5})
     rest = client.run(_rss)
     assert len(rest) == 2 and max(rest.values()) < tiles.WORKER_AT_REST, rest
+
+
+def _info(capsys, *argv):
+    from pcprep.meshlab_bridge.cli import main
+
+    assert main(["info", *argv]) == 0
+    return capsys.readouterr().out
+
+
+def test_cli_info_in_blocks_prints_what_the_whole_read_prints(tmp_path, capsys):
+    # positions with non-finite rows and a few attributes, in a binary PLY read
+    # in blocks of 2000 rows: counts, rows left out, box, spacing, isolated
+    # points and every field's range as when the file is read whole
+    import plyfile
+
+    from pcprep.meshlab_bridge.formats import stream
+
+    g = np.random.default_rng(3)
+    pts = _surface(5000, seed=3)
+    pts[[17, 2500, 4999], [0, 1, 2]] = [np.nan, np.inf, np.nan]
+    rows = np.empty(5000, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u1"),
+                                 ("green", "u1"), ("blue", "u1"), ("intensity", "u2"),
+                                 ("confidence", "f4")])
+    for c, v in zip("xyz", pts.T):
+        rows[c] = v
+    for c in ("red", "green", "blue"):
+        rows[c] = g.integers(0, 256, 5000)
+    rows["intensity"] = g.integers(0, 4096, 5000)
+    rows["confidence"] = g.random(5000)
+    rows["confidence"][100] = np.nan
+    src = tmp_path / "cloud.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")]).write(str(src))
+    whole = _info(capsys, str(src))
+    assert "non-finite points: 3 (rows 17, 2500, 4999)" in whole and "confidence" in whole
+    import unittest.mock
+
+    with unittest.mock.patch.object(stream, "CHUNK", 2000):
+        tiled = _info(capsys, str(src), "--tiles", "800", "--workers", "1", "--quiet")
+    assert tiled == whole
+
+
+def test_cli_info_of_a_format_read_whole_is_the_whole_read(tmp_path, capsys):
+    from pcprep.meshlab_bridge.cloud import Cloud
+    from pcprep.meshlab_bridge.convert import save_cloud
+
+    src = tmp_path / "mesh.ply"
+    pts = _surface(400, seed=4, outliers=0)
+    save_cloud(Cloud(points=pts, faces=np.array([[0, 1, 2], [2, 3, 4]])), str(src))
+    assert _info(capsys, str(src), "--tiles", "100", "--workers", "1") == _info(capsys,
+                                                                             str(src))
