@@ -122,19 +122,102 @@ def spacing_from_rows(row_mean: np.ndarray) -> float:
     3000-point cube the plain mean is 13,000 times too large).  When no point is
     isolated this is the plain mean of ``row_mean``, summed in row order, so
     that a tiled run, which gathers the same row means, gets the same h to the
-    last bit.
+    last bit.  Nothing of the size of ``row_mean`` is allocated unless some
+    point is isolated (a tiled run's rows are a memory map of every row).
     """
     row_mean = np.asarray(row_mean, dtype=np.float64)
-    iso = isolated(row_mean)
-    if not iso.any():
+    limit = isolated_limit(row_mean)
+    if not count_isolated(row_mean, limit):
         return float(row_mean.mean())
-    return float(row_mean[~iso].mean())
+    return float(row_mean[row_mean <= limit].mean())
+
+
+def isolated_limit(row_mean: np.ndarray) -> float:
+    """The mean neighbour distance above which a point is isolated:
+    ``ISOLATED_FACTOR`` times the median."""
+    return ISOLATED_FACTOR * median(np.asarray(row_mean, dtype=np.float64))
 
 
 def isolated(row_mean: np.ndarray) -> np.ndarray:
     """Mask of the isolated points, from their mean neighbour distances."""
     row_mean = np.asarray(row_mean, dtype=np.float64)
-    return row_mean > ISOLATED_FACTOR * float(np.median(row_mean))
+    return row_mean > isolated_limit(row_mean)
+
+
+def count_isolated(row_mean: np.ndarray, limit: float | None = None) -> int:
+    """How many points are isolated (``isolated(row_mean).sum()``), counted in
+    chunks of ``_SCAN`` rows."""
+    limit = isolated_limit(row_mean) if limit is None else limit
+    return sum(int(np.count_nonzero(row_mean[s:s + _SCAN] > limit))
+               for s in range(0, len(row_mean), _SCAN))
+
+
+#: arrays longer than this are not copied by :func:`median` (selection in chunks)
+MEDIAN_COPY_ROWS = 1 << 22
+#: rows per chunk of the scans of a whole-cloud array (``count_isolated``, ``_select``)
+_SCAN = 1 << 20
+#: bins of one round of :func:`_select`, and the most rows it partitions at the end
+_SELECT_BINS = 1 << 16
+_SELECT_ROWS = 1 << 20
+
+
+def median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D float64 array without NaN, bit for bit.  Up to
+    ``MEDIAN_COPY_ROWS`` rows it is ``np.median``, which partitions a copy;
+    beyond, the middle values are selected in chunks (:func:`_middle`), so a
+    memory map of a tiled run's every row is read, not copied."""
+    n = len(x)
+    if n <= MEDIAN_COPY_ROWS:
+        return float(np.median(x))
+    a, b = _middle(x, (n - 1) // 2)
+    return a if n % 2 else float(np.mean(np.array([a, b])))  # as np.median: (a + b) / 2
+
+
+def _middle(x: np.ndarray, k: int) -> tuple[float, float]:
+    """The ``k``-th and ``k + 1``-th smallest values of ``x`` (from 0), read
+    in chunks of ``_SCAN`` rows.  Each round counts the values of the window
+    (at first every value) in ``_SELECT_BINS`` equal bins and keeps, as the
+    next window, the bins that hold the two ranks; a value's bin is
+    ``floor((v - lo) * scale)``, monotone in ``v``, and a value is in the
+    window when every round so far put it in the kept bins, so the counts and
+    the window agree exactly.  A window of at most ``_SELECT_ROWS`` values, or
+    of one value repeated, is partitioned."""
+    def bins(v, lo_r, scale_r):
+        return np.clip(np.floor((v - lo_r) * scale_r), 0, _SELECT_BINS - 1)
+
+    def scan():
+        for s in range(0, len(x), _SCAN):
+            c = x[s:s + _SCAN]
+            for lo_r, scale_r, a, b in rounds:
+                j = bins(c, lo_r, scale_r)
+                c = c[(j >= a) & (j <= b)]
+            yield c
+
+    rounds = []  # (lo, scale, first kept bin, last kept bin)
+    lo = min(float(x[s:s + _SCAN].min()) for s in range(0, len(x), _SCAN))
+    hi = max(float(x[s:s + _SCAN].max()) for s in range(0, len(x), _SCAN))
+    if lo == hi:
+        return lo, lo
+    for _ in range(8):  # each round narrows the window about 65536 times
+        scale = _SELECT_BINS / (hi - lo)
+        counts = np.zeros(_SELECT_BINS, dtype=np.int64)
+        total, vmin, vmax = 0, np.inf, -np.inf
+        for v in scan():
+            if len(v):
+                counts += np.bincount(bins(v, lo, scale).astype(np.int64),
+                                      minlength=_SELECT_BINS)
+                total, vmin, vmax = total + len(v), min(vmin, v.min()), max(vmax, v.max())
+        if vmin == vmax:  # the window, which holds both ranks, is one value
+            return float(vmin), float(vmin)
+        if total <= _SELECT_ROWS:
+            break
+        cum = np.cumsum(counts)
+        a, b = (int(np.searchsorted(cum, r, side="right")) for r in (k, k + 1))
+        k -= int(cum[a - 1]) if a else 0
+        rounds.append((lo, scale, a, b))
+        lo, hi = lo + a / scale, lo + (b + 1) / scale
+    part = np.partition(np.concatenate(list(scan())), [k, k + 1])
+    return float(part[k]), float(part[k + 1])
 
 
 def spacing_rows(points: np.ndarray, k: int = SPACING_K, *,

@@ -163,7 +163,7 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
     """What ``pcprep info`` prints, from the file's ``meta``, its row count,
     the non-finite rows left out, the finite rows' bounding box, their
     spacing rows (``neighbors.spacing_rows``) and ``describe``'s fields."""
-    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, isolated,
+    from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, count_isolated,
                                           spacing_from_rows)
 
     lines = [f"file: {path}", f"format: {meta.get('format', '?')}", f"points: {n}"]
@@ -175,7 +175,7 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
     if faces is not None:
         lines.append(f"faces: {faces}")
     if rows is not None:
-        iso = int(np.count_nonzero(isolated(rows)))
+        iso = count_isolated(rows)
         lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "
                      f"left out): {spacing_from_rows(rows):.6g}")
         lines.append(f"isolated points (mean neighbour distance > {ISOLATED_FACTOR:g}x the "

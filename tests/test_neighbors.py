@@ -211,3 +211,46 @@ def test_tile_miss_says_how_far_the_worst_ball_pokes_out():
     assert tile_miss(pts, reach, lo - grown, hi + grown) is None
     assert tile_miss(pts, reach, [-np.inf] * 3, [np.inf] * 3) is None  # open sides
     assert tile_miss(pts, reach, lo - 0.15, hi + 0.15)["short"] == pytest.approx(0.05)
+
+
+@pytest.mark.parametrize("case", ["odd", "even", "ties", "all_equal", "far_outlier",
+                                  "two_neighbouring_floats"])
+def test_median_of_a_long_array_is_numpys_without_a_copy(monkeypatch, case):
+    # long arrays are not copied: their middle values are selected by rounds of
+    # histograms over chunks; tiny bins and chunks here force many rounds
+    from pcprep.filters import neighbors as nb
+
+    g = np.random.default_rng(5)
+    x = {"odd": g.lognormal(size=4001), "even": g.random(4000),
+         "ties": np.repeat(g.random(9), 301), "all_equal": np.full(3000, 0.25),
+         "far_outlier": np.r_[g.random(2999), 1e12],
+         "two_neighbouring_floats": np.tile([1.0, np.nextafter(1.0, 2.0)], 1500)}[case]
+    monkeypatch.setattr(nb, "MEDIAN_COPY_ROWS", 100)
+    monkeypatch.setattr(nb, "_SELECT_BINS", 4)
+    monkeypatch.setattr(nb, "_SELECT_ROWS", 16)
+    monkeypatch.setattr(nb, "_SCAN", 333)
+    assert nb.median(x) == float(np.median(x))
+    assert nb.count_isolated(x) == int(np.count_nonzero(nb.isolated(x)))
+
+
+def test_spacing_of_a_memory_mapped_cloud_reads_its_rows_without_copying_them(
+        tmp_path, monkeypatch):
+    import tracemalloc
+
+    from pcprep.filters import neighbors as nb
+
+    monkeypatch.setattr(nb, "_SCAN", 1 << 16)  # chunks of 0.5 MB: a copy would show
+
+    n = nb.MEDIAN_COPY_ROWS + 1001  # 33 MB of rows, past the copying median
+    rows = np.lib.format.open_memmap(str(tmp_path / "rows.npy"), mode="w+",
+                                     dtype=np.float64, shape=(n,))
+    rows[:] = np.random.default_rng(6).random(n) + 1.0
+    want = float(np.asarray(rows).mean())
+    tracemalloc.start()
+    try:
+        h = nb.spacing_from_rows(rows)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert h == want  # nothing isolated: the plain mean, in row order
+    assert peak < rows.nbytes / 4, peak
