@@ -777,6 +777,40 @@ if HAVE_NUMBA:
         t += a.shape[0] - i
         out[t:] = b[j:]
 
+    @_jit(inline="always")
+    def _select_bin(v, lo, scale, nbins):
+        b = np.floor((v - lo) * scale)
+        return 0 if b < 0 else (nbins - 1 if b > nbins - 1 else int(b))
+
+    @_jit()
+    def select_window(c, rlo, rscale, ra, rb, lo, scale, counts, out, count):
+        """One chunk of ``neighbors._middle``: the values of ``c`` that every
+        round r so far put in its kept bins (bin of rlo[r], rscale[r] in
+        [ra[r], rb[r]], ``len(counts)`` bins) form the window; with ``count``
+        each is counted in its bin of (lo, scale) into ``counts``, else
+        copied to ``out``.  Returns (how many, their min, their max)."""
+        nbins = counts.shape[0]
+        m = 0
+        vmin, vmax = np.inf, -np.inf
+        for i in range(c.shape[0]):
+            v = c[i]
+            keep = True
+            for r in range(rlo.shape[0]):
+                b = _select_bin(v, rlo[r], rscale[r], nbins)
+                if b < ra[r] or b > rb[r]:
+                    keep = False
+                    break
+            if not keep:
+                continue
+            if count:
+                counts[_select_bin(v, lo, scale, nbins)] += 1
+            else:
+                out[m] = v
+            m += 1
+            vmin = min(vmin, v)
+            vmax = max(vmax, v)
+        return m, vmin, vmax
+
     @_jit()
     def hood_mean(idx, count, values):
         """Mean of ``values`` (n, q) over the first count[i] entries of idx[i]."""

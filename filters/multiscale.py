@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from . import _kernels, sparse
+from . import _kernels, neighbors, sparse
 from ._params import Param
 from ._validation import InvalidParameterError, as_normals, as_points, check_spread
 from .neighbors import CHUNK, build_tree, centered, knn, leaf_chunks
@@ -273,9 +273,15 @@ def column_scale(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     thread (the columns are independent; NumPy's partition releases the GIL,
     so they run on the kernels' thread pool, ``_kernels.run_chunks``).  These
     are the global state of the standardisation: computed once over the whole
-    cloud and applied to any rows (``standardise``).
+    cloud and applied to any rows (``standardise``).  A column longer than
+    ``neighbors.MEDIAN_COPY_ROWS`` (a tiled run's memory map) is read in
+    chunks instead of copied: the same medians, the std up to rounding.
     """
     def stats(j: int) -> tuple[float, float, float]:
+        if len(F) > neighbors.MEDIAN_COPY_ROWS:
+            col = F[:, j]
+            m = neighbors.median(col)
+            return m, neighbors.median(col, lambda c: np.abs(c - m)), neighbors.chunked_std(col)
         col = np.array(F[:, j], dtype=np.float64)      # a private copy, reused:
         std = col.std()                                 # std first (row order),
         m = np.median(col, overwrite_input=True)        # then medians in place

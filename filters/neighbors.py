@@ -161,54 +161,80 @@ _SELECT_BINS = 1 << 16
 _SELECT_ROWS = 1 << 20
 
 
-def median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D float64 array without NaN, bit for bit.  Up to
+def median(x: np.ndarray, transform=None) -> float:
+    """``np.median`` of a 1-D float64 array without NaN (of ``transform(x)``,
+    an element-wise function, when given), bit for bit.  Up to
     ``MEDIAN_COPY_ROWS`` rows it is ``np.median``, which partitions a copy;
     beyond, the middle values are selected in chunks (:func:`_middle`), so a
     memory map of a tiled run's every row is read, not copied."""
     n = len(x)
     if n <= MEDIAN_COPY_ROWS:
-        return float(np.median(x))
-    a, b = _middle(x, (n - 1) // 2)
+        return float(np.median(x if transform is None else transform(np.asarray(x))))
+    a, b = _middle(x, (n - 1) // 2, transform or (lambda c: c))
     return a if n % 2 else float(np.mean(np.array([a, b])))  # as np.median: (a + b) / 2
 
 
-def _middle(x: np.ndarray, k: int) -> tuple[float, float]:
-    """The ``k``-th and ``k + 1``-th smallest values of ``x`` (from 0), read
-    in chunks of ``_SCAN`` rows.  Each round counts the values of the window
-    (at first every value) in ``_SELECT_BINS`` equal bins and keeps, as the
-    next window, the bins that hold the two ranks; a value's bin is
-    ``floor((v - lo) * scale)``, monotone in ``v``, and a value is in the
-    window when every round so far put it in the kept bins, so the counts and
-    the window agree exactly.  A window of at most ``_SELECT_ROWS`` values, or
-    of one value repeated, is partitioned."""
-    def bins(v, lo_r, scale_r):
-        return np.clip(np.floor((v - lo_r) * scale_r), 0, _SELECT_BINS - 1)
+def chunked_std(x: np.ndarray) -> float:
+    """The standard deviation of a long 1-D array in two passes of ``_SCAN``
+    rows (the mean, then the squared deviations), with no temporary of its
+    length (``np.std`` makes one); equal to ``np.std`` up to rounding."""
+    n = len(x)
+    mean = sum(float(x[s:s + _SCAN].sum()) for s in range(0, n, _SCAN)) / n
+    var = sum(float(np.square(x[s:s + _SCAN] - mean).sum()) for s in range(0, n, _SCAN)) / n
+    return float(np.sqrt(var))
 
-    def scan():
-        for s in range(0, len(x), _SCAN):
-            c = x[s:s + _SCAN]
-            for lo_r, scale_r, a, b in rounds:
-                j = bins(c, lo_r, scale_r)
-                c = c[(j >= a) & (j <= b)]
-            yield c
 
+def _middle(x: np.ndarray, k: int, transform) -> tuple[float, float]:
+    """The ``k``-th and ``k + 1``-th smallest values of ``transform(x)`` (from
+    0), read in chunks of ``_SCAN`` rows.  Each round counts the values of
+    the window (at first every value) in ``_SELECT_BINS`` equal bins and
+    keeps, as the next window, the bins that hold the two ranks; a value's
+    bin is ``floor((v - lo) * scale)`` clipped to the bins, monotone in
+    ``v``, and a value is in the window when every round so far put it in the
+    kept bins, so the counts and the window agree exactly.  A window of at
+    most ``_SELECT_ROWS`` values, or of one value repeated, is partitioned.
+    The chunks go through ``_kernels.select_window`` (one pass, no
+    temporaries), or its NumPy equivalent without the compiled kernels."""
     rounds = []  # (lo, scale, first kept bin, last kept bin)
-    lo = min(float(x[s:s + _SCAN].min()) for s in range(0, len(x), _SCAN))
-    hi = max(float(x[s:s + _SCAN].max()) for s in range(0, len(x), _SCAN))
+
+    def window(lo, scale, counts, count):
+        """Pass over the chunks: the window's size, min and max, and its
+        values counted into ``counts`` or, with ``count`` False, returned."""
+        r = [np.array(v) for v in zip(*rounds)] if rounds else [np.zeros(0)] * 4
+        m, vmin, vmax, parts = 0, np.inf, -np.inf, []
+        for s in range(0, len(x), _SCAN):
+            c = np.ascontiguousarray(transform(x[s:s + _SCAN]), dtype=np.float64)
+            if _kernels.ENABLED:
+                out = np.empty(0 if count else len(c))  # noqa: NPY-empty -- [:got] is read
+                got, lo_c, hi_c = _kernels.select_window(
+                    c, r[0].astype(np.float64), r[1].astype(np.float64),
+                    r[2].astype(np.int64), r[3].astype(np.int64), lo, scale, counts, out,
+                    count)
+                v = out[:got].copy()  # not a view that would keep the chunk's buffer
+            else:
+                for lo_r, scale_r, a, b in rounds:
+                    j = _bins(c, lo_r, scale_r)
+                    c = c[(j >= a) & (j <= b)]
+                v, got = c, len(c)
+                if got and count:
+                    counts += np.bincount(_bins(c, lo, scale).astype(np.int64),
+                                          minlength=_SELECT_BINS)
+                lo_c, hi_c = (c.min(), c.max()) if got else (np.inf, -np.inf)
+            m, vmin, vmax = m + got, min(vmin, lo_c), max(vmax, hi_c)
+            if not count:
+                parts.append(v)
+        return m, float(vmin), float(vmax), parts
+
+    counts = np.zeros(_SELECT_BINS, dtype=np.int64)
+    lo, hi = _extent(x, transform)
     if lo == hi:
         return lo, lo
     for _ in range(8):  # each round narrows the window about 65536 times
         scale = _SELECT_BINS / (hi - lo)
         counts = np.zeros(_SELECT_BINS, dtype=np.int64)
-        total, vmin, vmax = 0, np.inf, -np.inf
-        for v in scan():
-            if len(v):
-                counts += np.bincount(bins(v, lo, scale).astype(np.int64),
-                                      minlength=_SELECT_BINS)
-                total, vmin, vmax = total + len(v), min(vmin, v.min()), max(vmax, v.max())
+        total, vmin, vmax, _ = window(lo, scale, counts, True)
         if vmin == vmax:  # the window, which holds both ranks, is one value
-            return float(vmin), float(vmin)
+            return vmin, vmin
         if total <= _SELECT_ROWS:
             break
         cum = np.cumsum(counts)
@@ -216,8 +242,21 @@ def _middle(x: np.ndarray, k: int) -> tuple[float, float]:
         k -= int(cum[a - 1]) if a else 0
         rounds.append((lo, scale, a, b))
         lo, hi = lo + a / scale, lo + (b + 1) / scale
-    part = np.partition(np.concatenate(list(scan())), [k, k + 1])
+    part = np.partition(np.concatenate(window(0.0, 0.0, counts, False)[3]), [k, k + 1])
     return float(part[k]), float(part[k + 1])
+
+
+def _bins(v: np.ndarray, lo: float, scale: float) -> np.ndarray:
+    """``_kernels._select_bin`` of every value (NumPy)."""
+    return np.clip(np.floor((v - lo) * scale), 0, _SELECT_BINS - 1)
+
+
+def _extent(x: np.ndarray, transform) -> tuple[float, float]:
+    lo, hi = np.inf, -np.inf
+    for s in range(0, len(x), _SCAN):
+        c = transform(x[s:s + _SCAN])
+        lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
+    return lo, hi
 
 
 def spacing_rows(points: np.ndarray, k: int = SPACING_K, *,

@@ -204,3 +204,24 @@ def test_column_scale_is_the_plain_formula_and_leaves_the_input(rng):
         want_s = np.maximum(1.4826 * mad, 0.3 * F.std(axis=0))
         np.testing.assert_array_equal(med, want_m)
         np.testing.assert_array_equal(scale, np.where(want_s > 0, want_s, 1.0))
+
+
+def test_column_scale_of_long_columns_reads_them_in_chunks(monkeypatch):
+    # past MEDIAN_COPY_ROWS the columns of a tiled run's memory map are not
+    # copied: the medians and MADs are numpy's to the bit, the std to rounding
+    from pcprep.filters import multiscale, neighbors
+
+    g = np.random.default_rng(8)
+    F = np.c_[g.lognormal(size=3001), np.repeat(g.random(7), 429)[:3001], np.zeros(3001)]
+    med, scale = multiscale.column_scale(F)
+    monkeypatch.setattr(neighbors, "MEDIAN_COPY_ROWS", 1000)
+    monkeypatch.setattr(neighbors, "_SCAN", 97)
+    monkeypatch.setattr(neighbors, "_SELECT_BINS", 8)
+    monkeypatch.setattr(neighbors, "_SELECT_ROWS", 32)
+    calls = []
+    chunked = neighbors._middle
+    monkeypatch.setattr(neighbors, "_middle", lambda *a: calls.append(1) or chunked(*a))
+    med2, scale2 = multiscale.column_scale(F)
+    assert len(calls) == 2 * F.shape[1]  # the median and the MAD of each column, chunked
+    assert np.array_equal(med, med2)
+    assert np.allclose(scale, scale2, rtol=1e-12, atol=0) and scale[2] == scale2[2] == 1.0

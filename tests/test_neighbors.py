@@ -213,12 +213,16 @@ def test_tile_miss_says_how_far_the_worst_ball_pokes_out():
     assert tile_miss(pts, reach, lo - 0.15, hi + 0.15)["short"] == pytest.approx(0.05)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("case", ["odd", "even", "ties", "all_equal", "far_outlier",
                                   "two_neighbouring_floats"])
-def test_median_of_a_long_array_is_numpys_without_a_copy(monkeypatch, case):
+def test_median_of_a_long_array_is_numpys_without_a_copy(monkeypatch, case, compiled):
     # long arrays are not copied: their middle values are selected by rounds of
     # histograms over chunks; tiny bins and chunks here force many rounds
+    from pcprep.filters import _kernels
     from pcprep.filters import neighbors as nb
+
+    monkeypatch.setattr(_kernels, "ENABLED", compiled and _kernels.HAVE_NUMBA)
 
     g = np.random.default_rng(5)
     x = {"odd": g.lognormal(size=4001), "even": g.random(4000),
@@ -230,6 +234,8 @@ def test_median_of_a_long_array_is_numpys_without_a_copy(monkeypatch, case):
     monkeypatch.setattr(nb, "_SELECT_ROWS", 16)
     monkeypatch.setattr(nb, "_SCAN", 333)
     assert nb.median(x) == float(np.median(x))
+    m = float(np.median(x))
+    assert nb.median(x, lambda c: np.abs(c - m)) == float(np.median(np.abs(x - m)))
     assert nb.count_isolated(x) == int(np.count_nonzero(nb.isolated(x)))
 
 
