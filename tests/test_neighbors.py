@@ -246,7 +246,7 @@ def test_spacing_of_a_memory_mapped_cloud_reads_its_rows_without_copying_them(
     from pcprep.filters import neighbors as nb
 
     monkeypatch.setattr(nb, "_SCAN", 1 << 16)  # chunks of 0.5 MB: a copy would show
-
+    monkeypatch.setattr(nb, "MEDIAN_COPY_ROWS", 1 << 22)
     n = nb.MEDIAN_COPY_ROWS + 1001  # 33 MB of rows, past the copying median
     rows = np.lib.format.open_memmap(str(tmp_path / "rows.npy"), mode="w+",
                                      dtype=np.float64, shape=(n,))
