@@ -156,9 +156,9 @@ def count_isolated(row_mean: np.ndarray, limit: float | None = None) -> int:
 #: chunks): a copy of at most 256 MiB, per thread, is kept for its speed (at 5M
 #: rows the chunked median and MAD of a column take about twice as long)
 MEDIAN_COPY_ROWS = 1 << 25
-#: rows per chunk of the scans of a whole-cloud array (``count_isolated``, ``_select``)
+#: rows per chunk of the scans of a whole-cloud array (``count_isolated``, ``_middle``)
 _SCAN = 1 << 20
-#: bins of one round of :func:`_select`, and the most rows it partitions at the end
+#: bins of one round of :func:`_middle`, and the most rows it partitions at the end
 _SELECT_BINS = 1 << 16
 _SELECT_ROWS = 1 << 20
 
@@ -202,16 +202,14 @@ def _middle(x: np.ndarray, k: int, transform) -> tuple[float, float]:
     def window(lo, scale, counts, count):
         """Pass over the chunks: the window's size, min and max, and its
         values counted into ``counts`` or, with ``count`` False, returned."""
-        r = [np.array(v) for v in zip(*rounds)] if rounds else [np.zeros(0)] * 4
+        r = [np.array(v, dtype=t) for v, t in zip(zip(*rounds) if rounds else [()] * 4,
+                                                  (np.float64, np.float64, np.int64, np.int64))]
         m, vmin, vmax, parts = 0, np.inf, -np.inf, []
         for s in range(0, len(x), _SCAN):
             c = np.ascontiguousarray(transform(x[s:s + _SCAN]), dtype=np.float64)
             if _kernels.ENABLED:
                 out = np.empty(0 if count else len(c))  # noqa: NPY-empty -- [:got] is read
-                got, lo_c, hi_c = _kernels.select_window(
-                    c, r[0].astype(np.float64), r[1].astype(np.float64),
-                    r[2].astype(np.int64), r[3].astype(np.int64), lo, scale, counts, out,
-                    count)
+                got, lo_c, hi_c = _kernels.select_window(c, *r, lo, scale, counts, out, count)
                 v = out[:got].copy()  # not a view that would keep the chunk's buffer
             else:
                 for lo_r, scale_r, a, b in rounds:
