@@ -92,7 +92,7 @@ def _add_scale_options(p, same: str) -> None:
     big.add_argument("--scheduler", default=None, metavar="ADDRESS",
                      help="attach to a running Dask scheduler instead of a local cluster")
     big.add_argument("--memory-budget", default=None, metavar="BYTES",
-                     help="memory limit per local worker (e.g. 4GB, at least 512MiB; "
+                     help="memory limit per local worker (e.g. 4GB, at least 768MiB; "
                           "default: the machine's memory shared out)")
     big.add_argument("--worker-io", default=None, choices=("auto", "on", "off"),
                      help="on: the workers cut their tiles from the scratch folder and "
