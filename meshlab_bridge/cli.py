@@ -202,9 +202,10 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
 def _cmd_info_tiled(args) -> None:
     """``pcprep info`` of a cloud larger than memory: one pass over the
     file's blocks for the counts, the non-finite rows, the bounding box and
-    every field's range (``FieldRanges``), the finite positions streamed into
-    a scratch memory map, and the spacing rows by tiles on Dask
-    (``tiles.spacing_rows``).  Formats read whole are read whole."""
+    every field's range (``FieldRanges``), which also writes the finite
+    positions to the scratch folder (the file is decoded once), then the
+    spacing rows by tiles on Dask (``tiles.spacing_rows``).  Formats read
+    whole are read whole."""
     import shutil
     import tempfile
 
@@ -223,44 +224,35 @@ def _cmd_info_tiled(args) -> None:
         return
     meta, n, dropped, ranges = {}, 0, [], FieldRanges()
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for start, block in blocks(stream.CHUNK):
-        meta, n = meta or block.meta, start + len(block)
-        bad = ~np.isfinite(block.points).all(axis=1)
-        if bad.any():
-            dropped.extend((start + np.flatnonzero(bad)).tolist())
-            block = block.subset(np.flatnonzero(~bad), keep_faces=False)
-        ranges.add(block)
-        if len(block):
-            lo = np.minimum(lo, block.points.min(axis=0))
-            hi = np.maximum(hi, block.points.max(axis=0))
-    finite = n - len(dropped)
     scratch = tempfile.mkdtemp(prefix="pcprep-info-")
     try:
+        finite_path = os.path.join(scratch, "finite.raw")
+        with open(finite_path, "wb") as finite_out:
+            for start, block in blocks(stream.CHUNK):
+                meta, n = meta or block.meta, start + len(block)
+                bad = ~np.isfinite(block.points).all(axis=1)
+                if bad.any():
+                    dropped.extend((start + np.flatnonzero(bad)).tolist())
+                    block = block.subset(np.flatnonzero(~bad), keep_faces=False)
+                ranges.add(block)
+                if len(block):
+                    lo = np.minimum(lo, block.points.min(axis=0))
+                    hi = np.maximum(hi, block.points.max(axis=0))
+                    finite_out.write(np.ascontiguousarray(block.points, np.float64).tobytes())
+        finite = n - len(dropped)
         rows = None
         if finite > SPACING_K:
+            xyz = np.memmap(finite_path, dtype=np.float64, mode="r", shape=(finite, 3))
             with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
                                    memory_budget=args.memory_budget) as client:
-                src = tiles.ingest(_finite_chunks(path, dropped), finite, scratch)
+                src = tiles.ingest(((s, xyz[s:s + stream.CHUNK])
+                                    for s in range(0, finite, stream.CHUNK)), finite, scratch)
+                del xyz
                 rows = tiles.spacing_rows(src, client, scratch, args.tiles)
         _print_info(path, meta, n, dropped, (lo, hi) if finite else None, rows,
                     ranges.rows(), None)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-
-
-def _finite_chunks(path: str, dropped: list):
-    """The file's position blocks without the rows in ``dropped`` (ascending),
-    numbered anew from 0."""
-    from .formats import stream
-
-    gone = np.asarray(dropped, dtype=np.int64)
-    out = 0
-    for start, xyz in stream.position_chunks(path):
-        lo, hi = np.searchsorted(gone, [start, start + len(xyz)])
-        if hi > lo:
-            xyz = np.delete(xyz, gone[lo:hi] - start, axis=0)
-        yield out, xyz
-        out += len(xyz)
 
 
 def _cmd_filters() -> None:
