@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .multiscale import MOMENT_CHUNK, sym3_eig
-from .neighbors import build_tree, knn, leaf_order
+from .neighbors import build_tree, knn, leaf_order, median
 
 #: neighbours of the crease-line estimate on clean data, and its growth per unit σ̂ (h)
 _LOC_K = 16
@@ -40,7 +40,7 @@ def noise_level(lambda0_h2: np.ndarray) -> float:
     >>> noise_level(np.array([0.0, 0.04, 0.04, 9.0]))
     0.2
     """
-    return float(np.sqrt(max(float(np.median(lambda0_h2)), 0.0)))
+    return float(np.sqrt(max(median(lambda0_h2), 0.0)))
 
 
 def localisation_k(sigma: float) -> int:

@@ -512,30 +512,43 @@ def prepare_cloud(points, normals, *, k_min: int, k_max: int, func: str):
 _DISTINCT_PROBE = 8192
 
 
-def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
-    """Otsu's threshold (maximal between-class variance) of ``values``.
+def otsu_threshold(values: np.ndarray, bins: int = 256, clip: float | None = None) -> float:
+    """Otsu's threshold (maximal between-class variance) of ``values``, or of
+    ``np.minimum(values, clip)`` when ``clip`` is given.
 
     A score with at most ``bins`` distinct values gets one bin per value.
-    Returns t; the upper class is ``values > t``.
+    The values are read in chunks (``neighbors._SCAN`` rows) and their counts
+    added, which are those of the whole array, so a memory map of a tiled
+    run's every score is neither copied nor clipped in a copy.  Returns t;
+    the upper class is ``values > t``.
 
     >>> otsu_threshold(np.r_[np.ones(90), 5 * np.ones(10)])
     3.0
     """
     v = np.asarray(values, dtype=np.float64).ravel()
-    lo, hi = float(v.min()), float(v.max())
+    scan = neighbors._SCAN
+
+    def chunks():
+        for s in range(0, len(v), scan):
+            yield v[s:s + scan] if clip is None else np.minimum(v[s:s + scan], clip)
+
+    lo, hi = np.inf, -np.inf
+    for c in chunks():
+        lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
     if hi <= lo:
         return hi
     # more than ``bins`` distinct values among the first rows settles it without
     # sorting every value (a continuous score, the usual case)
-    few = len(np.unique(v[:_DISTINCT_PROBE])) <= bins
-    if few:
-        centers, counts = np.unique(v, return_counts=True)
-    if few and len(centers) <= bins:
-        counts = counts.astype(np.float64)
+    head = v[:_DISTINCT_PROBE] if clip is None else np.minimum(v[:_DISTINCT_PROBE], clip)
+    centers = _distinct_counts(chunks(), bins) if len(np.unique(head)) <= bins else None
+    if centers is not None:
+        centers, counts = centers
         cuts = 0.5 * (centers[:-1] + centers[1:])
     else:
-        counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
-        counts = counts.astype(np.float64)
+        counts = np.zeros(bins)
+        for c in chunks():
+            counts += np.histogram(c, bins=bins, range=(lo, hi))[0]
+        edges = np.histogram_bin_edges(v[:0], bins=bins, range=(lo, hi))
         centers = 0.5 * (edges[:-1] + edges[1:])
         cuts = edges[1:-1]
     w = counts / counts.sum()
@@ -548,6 +561,19 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     between = np.zeros_like(w0)
     between[ok] = (mu_t * w0[ok] - mu0[ok]) ** 2 / (w0[ok] * w1[ok])
     return float(cuts[int(np.argmax(between))])
+
+
+def _distinct_counts(chunks, most: int):
+    """The distinct values of the chunks and their counts (float64), merged
+    chunk by chunk; None once there are more than ``most`` of them."""
+    centers, counts = np.empty(0), np.empty(0)
+    for c in chunks:
+        u, k = np.unique(c, return_counts=True)
+        centers, at = np.unique(np.r_[centers, u], return_inverse=True)
+        counts = np.bincount(at, weights=np.r_[counts, k], minlength=len(centers))
+        if len(centers) > most:
+            return None
+    return centers, counts
 
 
 def chain_labels(points: np.ndarray, link: float) -> np.ndarray:

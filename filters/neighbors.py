@@ -152,8 +152,8 @@ def count_isolated(row_mean: np.ndarray, limit: float | None = None) -> int:
                for s in range(0, len(row_mean), _SCAN))
 
 
-#: arrays longer than this are not copied by :func:`median` (selection in
-#: chunks): a copy of at most 256 MiB, per thread, is kept for its speed (at 5M
+#: arrays longer than this are not copied by :func:`median` and :func:`quantile`
+#: (selection in chunks): a copy of at most 256 MiB, per thread, is kept for its speed (at 5M
 #: rows the chunked median and MAD of a column take about twice as long)
 MEDIAN_COPY_ROWS = 1 << 25
 #: rows per chunk of the scans of a whole-cloud array (``count_isolated``, ``_middle``)
@@ -174,6 +174,24 @@ def median(x: np.ndarray, transform=None) -> float:
         return float(np.median(x if transform is None else transform(np.asarray(x))))
     a, b = _middle(x, (n - 1) // 2, transform or (lambda c: c))
     return a if n % 2 else float(np.mean(np.array([a, b])))  # as np.median: (a + b) / 2
+
+
+def quantile(x: np.ndarray, q: float) -> float:
+    """``np.quantile(x, q)`` (its default, linear interpolation) of a 1-D
+    float64 array without NaN, bit for bit: a copy up to ``MEDIAN_COPY_ROWS``
+    rows, beyond the two order statistics around ``q (n − 1)`` selected in
+    chunks (:func:`_middle`) and interpolated as NumPy does (from the upper
+    one when the weight is at least ½)."""
+    n = len(x)
+    if n <= MEDIAN_COPY_ROWS:
+        return float(np.quantile(x, q))
+    at = (n - 1) * q
+    k = int(np.floor(at))
+    if k >= n - 1:
+        return _extent(x, lambda c: c)[1]
+    a, b = _middle(x, k, lambda c: c)
+    g = at - k
+    return float(b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g)
 
 
 def chunked_std(x: np.ndarray) -> float:

@@ -31,7 +31,7 @@ from ._validation import PointCloudError
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, record_step, scale_moments,
                          scale_sizes, score_rows)
-from .neighbors import SPACING_K, average_spacing, spacing_from_rows
+from .neighbors import SPACING_K, average_spacing, quantile, spacing_from_rows
 
 log = logging.getLogger("pcprep")
 
@@ -250,7 +250,7 @@ def threshold(score: np.ndarray, cfg: _SharpConfig, rules: _SharpRules) -> float
     "Sharp threshold: winsorised Otsu" and "Threshold below Otsu's split")."""
     if cfg.beta is not None:
         return float(cfg.beta * score.max())
-    T = otsu_threshold(np.minimum(score, np.quantile(score, _WINSOR_Q)))
+    T = otsu_threshold(score, clip=quantile(score, _WINSOR_Q))
     if cfg.otsu_scale is not None:
         return T * float(cfg.otsu_scale)
     gated = rules.angle_gate and cfg.min_angle > 0 and rules.localise

@@ -176,13 +176,21 @@ def code_rows(F: np.ndarray, D: np.ndarray, alpha: float):
     return sparse.code_length(codes, F, D)
 
 
-def normalised_saliency(nnz: np.ndarray, res: np.ndarray) -> np.ndarray:
+def normalised_saliency(nnz: np.ndarray, res: np.ndarray, maxima=None) -> np.ndarray:
     """Sf = f·g (6.10): the atom count and the residual, each divided by its
-    maximum over the cloud."""
-    f = nnz / max(int(nnz.max()), 1)
-    rmax = float(res.max())
+    maximum over the cloud (``maxima``, from :func:`saliency_maxima` of every
+    row, when ``nnz`` and ``res`` are a chunk of the rows: a row's Sf depends
+    on the row and the two maxima only)."""
+    nmax, rmax = saliency_maxima(nnz, res) if maxima is None else maxima
+    f = nnz / nmax
     g = res / rmax if rmax > 0 else np.zeros_like(res)
     return f * g
+
+
+def saliency_maxima(nnz: np.ndarray, res: np.ndarray) -> tuple[int, float]:
+    """The divisors of (6.10): the largest atom count (at least 1) and the
+    largest residual."""
+    return max(int(nnz.max()), 1), float(res.max())
 
 
 # --------------------------------------------------------------------------- greedy

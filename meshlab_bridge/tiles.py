@@ -67,7 +67,8 @@ import numpy as np
 from pcprep.filters import progress
 from pcprep.filters._validation import (InvalidParameterError, PointCloudError,
                                         _duplicate_pairs, check_extent, duplicate_error)
-from pcprep.filters.neighbors import SPACING_K, build_tree, knn, spacing_from_rows, tile_miss
+from pcprep.filters.neighbors import (SPACING_K, build_tree, knn, quantile, spacing_from_rows,
+                                      tile_miss)
 
 log = logging.getLogger("pcprep")
 
@@ -884,6 +885,20 @@ class _Runner:
             out[s0:s0 + CHUNK] = values[s0:s0 + CHUNK]
         return out
 
+    def rows_where(self, name: str, mask: np.ndarray, value: bool = True) -> np.ndarray:
+        """The rows where ``mask`` is ``value``, ascending, into ``store(name)``
+        (int64), chunk by chunk: ``np.flatnonzero`` with no temporary of the
+        cloud's length."""
+        picks = lambda s0: mask[s0:s0 + CHUNK] if value else ~mask[s0:s0 + CHUNK]  # noqa: E731
+        starts = range(0, len(mask), CHUNK)
+        out = self.store(name, sum(int(np.count_nonzero(picks(s0))) for s0 in starts), np.int64)
+        at = 0
+        for s0 in starts:
+            rows = np.flatnonzero(picks(s0)) + s0
+            out[at:at + len(rows)] = rows
+            at += len(rows)
+        return out
+
     def map(self, name: str | None, fn, *arrays, dtype=np.float64, out=None) -> np.ndarray:
         """``fn(*chunks)`` over row chunks of ``arrays`` into ``store(name)``
         (or into ``out``): for element-wise rules, whose values do not depend
@@ -1302,12 +1317,12 @@ def _outliers(runner, src, normals, h, prm) -> TiledResult:
                    [(score, "score", "ext")])
     if prm["method"] == "statistical":
         threshold = float(score.mean() + prm["std_ratio"] * score.std())
-        out = score > threshold
+        out = runner.map("outlier", lambda v: v > threshold, score, dtype=bool)
     else:
         threshold = float(prm["min_neighbors"])
-        out = score < threshold
-    keep_idx = runner.on_disk("keep_idx", np.flatnonzero(~out))
-    removed_idx = runner.on_disk("removed_idx", np.flatnonzero(out))
+        out = runner.map("outlier", lambda v: v < threshold, score, dtype=bool)
+    keep_idx = runner.rows_where("keep_idx", out, False)
+    removed_idx = runner.rows_where("removed_idx", out)
     return TiledResult({"keep_idx": keep_idx, "removed_idx": removed_idx, "score": score}, h,
                        {"threshold": threshold, "passes": passes})
 
@@ -1809,7 +1824,8 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
     nnz = runner.store("nnz", n, np.int64)
     res = runner.store("residual", n)
     _map_rows(runner, "simplify codes", _code_task, (F, "rows"), D, prm["alpha"], [nnz, res])
-    score = runner.on_disk("score", sd.normalised_saliency(nnz, res))
+    maxima = sd.saliency_maxima(nnz, res)
+    score = runner.map("score", lambda a, r: sd.normalised_saliency(a, r, maxima), nnz, res)
     unit = runner.map("unit", lambda r: hs * (np.maximum(r, 1e-3 * hs) / hs)
                       ** prm["density_adapt"], rows6)
     inv = runner.map("inverse_score", lambda v: 1.0 / np.maximum(v, prm["sf_floor"]), score)
@@ -1820,7 +1836,7 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
         runner.map(None, lambda u, v: dl * u * v, unit, inv, out=rho)
         keep = runner.store(f"keep-{len(trials)}", n, bool)
 
-        halo = 3.0 * float(np.quantile(rho, 0.999)) + _knn_reach(sd.GRAPH_K) * hs
+        halo = 3.0 * quantile(rho, 0.999) + _knn_reach(sd.GRAPH_K) * hs
         runner.halo.clear()
         runner.run("simplify greedy", sd.sdbs_tile, halo, dict(base, stage="greedy"),
                    [(keep, "keep", "core")],

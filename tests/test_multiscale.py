@@ -188,6 +188,26 @@ def test_otsu_does_not_depend_on_which_values_come_first(rng):
     assert otsu_threshold(few) in (0.5, 2.5)
 
 
+@pytest.mark.parametrize("case", ["continuous", "few", "few_at_first", "constant_after_clip"])
+def test_otsu_read_in_chunks_and_clipped_is_the_whole_arrays(monkeypatch, rng, case):
+    """The counts added chunk by chunk are the whole array's, and ``clip`` is
+    ``np.minimum`` (the features threshold winsorises a memory map of every
+    score with it): the same threshold to the bit, whatever the chunks."""
+    from pcprep.filters import neighbors
+
+    v = {"continuous": rng.gamma(2.0, 1.0, 5000),
+         "few": rng.choice([0.0, 1.0, 4.0, 9.0], 5000, p=[0.5, 0.3, 0.15, 0.05]),
+         # few distinct values among the probed rows, many after them
+         "few_at_first": np.r_[np.repeat([1.0, 2.0], 4200), rng.random(3000) + 1.5],
+         "constant_after_clip": np.r_[np.full(10, 3.0), rng.random(100) + 5.0]}[case]
+    c = float(np.quantile(v, 0.9))
+    whole, clipped = otsu_threshold(v), otsu_threshold(np.minimum(v, c))
+    monkeypatch.setattr(neighbors, "_SCAN", 377)
+    assert otsu_threshold(v) == whole
+    assert otsu_threshold(v, clip=c) == clipped
+    assert otsu_threshold(np.minimum(v, c)) == clipped
+
+
 def test_column_scale_is_the_plain_formula_and_leaves_the_input(rng):
     """Median, max(1.4826·MAD, 0.3·std) per column (1 where that is 0), to the
     bit; the in-place medians work on copies, so ``F`` is unchanged, whether

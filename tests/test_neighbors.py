@@ -239,6 +239,33 @@ def test_median_of_a_long_array_is_numpys_without_a_copy(monkeypatch, case, comp
     assert nb.count_isolated(x) == int(np.count_nonzero(nb.isolated(x)))
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("case", ["odd", "even", "ties", "all_equal", "far_outlier"])
+def test_quantile_of_a_long_array_is_numpys_bit_for_bit(monkeypatch, case, compiled):
+    # the features threshold winsorises every score at a quantile: past
+    # MEDIAN_COPY_ROWS the two order statistics are selected in chunks and
+    # interpolated as numpy does, from below or (weight >= 1/2) from above
+    from pcprep.filters import _kernels
+    from pcprep.filters import neighbors as nb
+
+    monkeypatch.setattr(_kernels, "ENABLED", compiled and _kernels.HAVE_NUMBA)
+    g = np.random.default_rng(6)
+    x = {"odd": g.lognormal(size=4001), "even": g.random(4000),
+         "ties": np.repeat(g.random(9), 301), "all_equal": np.full(3000, 0.25),
+         "far_outlier": np.r_[g.random(2999), 1e12]}[case]
+    monkeypatch.setattr(nb, "MEDIAN_COPY_ROWS", 100)
+    monkeypatch.setattr(nb, "_SELECT_BINS", 4)
+    monkeypatch.setattr(nb, "_SELECT_ROWS", 16)
+    monkeypatch.setattr(nb, "_SCAN", 333)
+    for q in (0.0, 0.05, 0.5, 0.6, 0.95, 0.999, 0.9999, 1.0):
+        assert nb.quantile(x, q) == float(np.quantile(x, q)), q
+    calls = []
+    chunked = nb._middle
+    monkeypatch.setattr(nb, "_middle", lambda *a: calls.append(1) or chunked(*a))
+    nb.quantile(x, 0.95)
+    assert calls  # the long array went through the chunked selection
+
+
 def test_spacing_of_a_memory_mapped_cloud_reads_its_rows_without_copying_them(
         tmp_path, monkeypatch):
     import tracemalloc
