@@ -889,7 +889,10 @@ class _Runner:
         """The rows where ``mask`` is ``value``, ascending, into ``store(name)``
         (int64), chunk by chunk: ``np.flatnonzero`` with no temporary of the
         cloud's length."""
-        picks = lambda s0: mask[s0:s0 + CHUNK] if value else ~mask[s0:s0 + CHUNK]  # noqa: E731
+        def picks(s0):
+            part = np.asarray(mask[s0:s0 + CHUNK])
+            return part if value else ~part
+
         starts = range(0, len(mask), CHUNK)
         out = self.store(name, sum(int(np.count_nonzero(picks(s0))) for s0 in starts), np.int64)
         at = 0
