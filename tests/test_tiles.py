@@ -201,6 +201,7 @@ def test_driver_keeps_per_row_results_on_disk(client, tmp_path, monkeypatch):
         assert isinstance(v, np.memmap), name
         assert os.path.dirname(os.path.abspath(v.filename)) == str(tmp_path), name
     assert np.array_equal(res.fields["removed_idx"], ref.removed_idx)
+    assert np.array_equal(res.fields["keep_idx"], ref.keep_idx)
     assert np.array_equal(res.fields["score"], ref.score)
     assert not [f for f in os.listdir(tmp_path) if f.startswith("seen")]  # pass checks gone
     with pytest.raises(InvalidParameterError, match="already holds"):  # never overwritten
@@ -209,6 +210,20 @@ def test_driver_keeps_per_row_results_on_disk(client, tmp_path, monkeypatch):
     own = tiles.run_tiled("outliers", CLOUD, client=client, tiles=1500)
     assert not any(isinstance(v, np.memmap) for v in own.fields.values())
     assert np.array_equal(own.fields["keep_idx"], ref.keep_idx)
+
+
+def test_rows_where_lists_a_stored_masks_rows_chunk_by_chunk(tmp_path, monkeypatch):
+    # the outlier lists of a tiled run: np.flatnonzero, built in chunks of the
+    # driver (7 rows here) into the scratch folder, empty and full lists included
+    monkeypatch.setattr(tiles, "CHUNK", 7)
+    runner = object.__new__(tiles._Runner)  # rows_where needs the scratch folder only
+    runner.scratch = str(tmp_path)
+    mask = np.random.default_rng(1).random(50) < 0.3
+    for name, m, value in [("some", mask, True), ("others", mask, False),
+                           ("none", np.zeros(20, bool), True), ("all", np.zeros(20, bool), False)]:
+        got = runner.rows_where(name, m, value)
+        assert isinstance(got, np.memmap) and got.dtype == np.int64
+        assert np.array_equal(got, np.flatnonzero(m == value)), name
 
 
 def test_rows_on_seams_belong_to_one_core(client):
