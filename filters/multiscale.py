@@ -275,13 +275,13 @@ def column_scale(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     are the global state of the standardisation: computed once over the whole
     cloud and applied to any rows (``standardise``).  A column longer than
     ``neighbors.MEDIAN_COPY_ROWS`` (a tiled run's memory map) is read in
-    chunks instead of copied: the same medians, the std up to rounding.
+    chunks instead of copied, to the same values bit for bit.
     """
     def stats(j: int) -> tuple[float, float, float]:
         if len(F) > neighbors.MEDIAN_COPY_ROWS:
             col = F[:, j]
             m = neighbors.median(col)
-            return m, neighbors.median(col, lambda c: np.abs(c - m)), neighbors.chunked_std(col)
+            return m, neighbors.median(col, lambda c: np.abs(c - m)), neighbors.mean_std(col)[1]
         col = np.array(F[:, j], dtype=np.float64)      # a private copy, reused:
         std = col.std()                                 # std first (row order),
         m = np.median(col, overwrite_input=True)        # then medians in place

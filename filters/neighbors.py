@@ -194,14 +194,38 @@ def quantile(x: np.ndarray, q: float) -> float:
     return float(b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g)
 
 
-def chunked_std(x: np.ndarray) -> float:
-    """The standard deviation of a long 1-D array in two passes of ``_SCAN``
-    rows (the mean, then the squared deviations), with no temporary of its
-    length (``np.std`` makes one); equal to ``np.std`` up to rounding."""
+#: the longest block NumPy's pairwise sum adds without cutting it in two
+_PAIRWISE_BLOCK = 128
+
+
+def pairwise_sum(x: np.ndarray, transform=None) -> float:
+    """``np.add.reduce`` of the contiguous float64 values of ``x`` (1-D; of
+    ``transform(x)``, an element-wise function, when given), bit for bit, read
+    in chunks of at most ``_SCAN`` rows.  NumPy sums a contiguous array
+    pairwise: it cuts it in two, the first part n/2 rows rounded down to a
+    multiple of 8, down to blocks of ``_PAIRWISE_BLOCK`` rows.  Cutting the
+    same way down to chunks and summing each with NumPy builds the same tree,
+    hence the same sum, with no temporary of the array's length."""
+    def part(s: int, e: int):
+        if e - s <= max(_SCAN, _PAIRWISE_BLOCK):
+            c = x[s:e] if transform is None else transform(x[s:e])
+            return np.add.reduce(np.ascontiguousarray(c, dtype=np.float64))
+        half = (e - s) // 2
+        half -= half % 8
+        return part(s, s + half) + part(s + half, e)
+
+    return float(part(0, len(x)))
+
+
+def mean_std(x: np.ndarray) -> tuple[float, float]:
+    """``np.mean`` and ``np.std`` of a contiguous copy of the 1-D float64
+    array ``x``, bit for bit, read in chunks: the pairwise sum over n, then
+    the square root of the pairwise sum of (x − mean)² over n, as NumPy takes
+    them (:func:`pairwise_sum`); no temporary of the array's length, where
+    ``np.std`` makes one."""
     n = len(x)
-    mean = sum(float(x[s:s + _SCAN].sum()) for s in range(0, n, _SCAN)) / n
-    var = sum(float(np.square(x[s:s + _SCAN] - mean).sum()) for s in range(0, n, _SCAN)) / n
-    return float(np.sqrt(var))
+    mean = pairwise_sum(x) / n
+    return mean, float(np.sqrt(pairwise_sum(x, lambda c: np.square(c - mean)) / n))
 
 
 def _middle(x: np.ndarray, k: int, transform) -> tuple[float, float]:

@@ -67,8 +67,8 @@ import numpy as np
 from pcprep.filters import progress
 from pcprep.filters._validation import (InvalidParameterError, PointCloudError,
                                         _duplicate_pairs, check_extent, duplicate_error)
-from pcprep.filters.neighbors import (SPACING_K, build_tree, knn, quantile, spacing_from_rows,
-                                      tile_miss)
+from pcprep.filters.neighbors import (SPACING_K, build_tree, knn, mean_std, quantile,
+                                      spacing_from_rows, tile_miss)
 
 log = logging.getLogger("pcprep")
 
@@ -1319,7 +1319,8 @@ def _outliers(runner, src, normals, h, prm) -> TiledResult:
         runner.run("outliers", _outlier_tile, (prm["radius"] + tile_hops(prm)) * h, args,
                    [(score, "score", "ext")])
     if prm["method"] == "statistical":
-        threshold = float(score.mean() + prm["std_ratio"] * score.std())
+        mean, std = mean_std(score)  # np.mean and np.std's values, read in chunks
+        threshold = mean + prm["std_ratio"] * std
         out = runner.map("outlier", lambda v: v > threshold, score, dtype=bool)
     else:
         threshold = float(prm["min_neighbors"])

@@ -266,6 +266,25 @@ def test_quantile_of_a_long_array_is_numpys_bit_for_bit(monkeypatch, case, compi
     assert calls  # the long array went through the chunked selection
 
 
+@pytest.mark.parametrize("n", [5, 128, 129, 1000, 4099, 100_003])
+def test_mean_and_std_read_in_chunks_are_numpys_bit_for_bit(monkeypatch, n):
+    # the statistical outlier threshold of a tiled run reads every score in
+    # chunks: cut as numpy's pairwise sum cuts, the sums are numpy's; a column
+    # of an (n, 3) array gives the values of its contiguous copy
+    from pcprep.filters import neighbors as nb
+
+    g = np.random.default_rng(n)
+    # magnitudes over ten decades and both signs: another tree rounds otherwise
+    x = g.standard_normal(n) * np.exp(g.uniform(-12.0, 12.0, n)) + 1e4
+    cols = g.lognormal(size=(n, 3))
+    for scan in (7, 97, 1 << 20):
+        monkeypatch.setattr(nb, "_SCAN", scan)
+        assert nb.mean_std(x) == (float(np.mean(x)), float(np.std(x))), scan
+        copy = np.ascontiguousarray(cols[:, 1])
+        assert nb.mean_std(cols[:, 1]) == (float(copy.mean()), float(copy.std())), scan
+        assert nb.pairwise_sum(x, np.abs) == float(np.sum(np.abs(x))), scan
+
+
 def test_spacing_of_a_memory_mapped_cloud_reads_its_rows_without_copying_them(
         tmp_path, monkeypatch):
     import tracemalloc
