@@ -153,8 +153,8 @@ def count_isolated(row_mean: np.ndarray, limit: float | None = None) -> int:
 
 
 #: arrays longer than this are not copied by :func:`median` and :func:`quantile`
-#: (selection in chunks): a copy of at most 256 MiB, per thread, is kept for its speed (at 5M
-#: rows the chunked median and MAD of a column take about twice as long)
+#: (selection in chunks): a copy of at most 256 MiB, per thread, is kept for its
+#: speed (at 5M rows the chunked median and MAD of a column take about twice as long)
 MEDIAN_COPY_ROWS = 1 << 25
 #: rows per chunk of the scans of a whole-cloud array (``count_isolated``, ``_middle``)
 _SCAN = 1 << 20
