@@ -51,6 +51,7 @@ big for the budget) ends the run with ``WorkersLostError``, which says so.
 
 from __future__ import annotations
 
+import errno
 import functools
 import logging
 import math
@@ -114,14 +115,53 @@ class Source:
         return 0.5 * (self.lo + self.hi)
 
 
+class ScratchSpaceError(OSError):
+    """The scratch folder has no room for an array a run keeps there."""
+
+
+def open_scratch(path: str, shape, dtype=np.float64) -> np.memmap:
+    """A new zero-filled ``.npy`` memory map at ``path`` with its disk blocks
+    reserved at once (``os.posix_fallocate``).  A memory map only takes disk
+    blocks as its pages are written; on a full disk the kernel answers such a
+    write with SIGBUS, and the process (or the worker) dies without a word.
+    Reserved up front, a folder without room fails here instead, with
+    ``ScratchSpaceError`` naming the folder, the size and the free space (the
+    file is removed).  Where the platform or file system cannot reserve, the
+    map is returned as it is."""
+    arr = np.lib.format.open_memmap(path, mode="w+", dtype=dtype,
+                                    shape=(shape,) if np.isscalar(shape) else tuple(shape))
+    if not hasattr(os, "posix_fallocate"):
+        return arr
+    size = os.path.getsize(path)
+    try:
+        fd = os.open(path, os.O_RDWR)
+        try:
+            os.posix_fallocate(fd, 0, size)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            return arr  # the file system does not reserve: nothing to check
+        del arr
+        folder = os.path.dirname(os.path.abspath(path))
+        free = shutil.disk_usage(folder).free
+        with suppress(OSError):
+            os.remove(path)
+        raise ScratchSpaceError(
+            exc.errno, f"the scratch folder {folder} has no room for "
+            f"{os.path.basename(path)} ({size / 2**20:.0f} MiB; {free / 2**20:.0f} MiB "
+            "free): give a folder with more room (scratch=, or TMPDIR for the "
+            "command line)") from None
+    return arr
+
+
 def ingest(chunks, n: int, scratch: str) -> Source:
     """Write streamed ``(start, xyz)`` chunks into ``scratch/xyz.npy``; refuse
     non-finite rows (naming the first ones) and chunks that do not cover rows
     0…n−1 once each, in order (a count that does not match the data).  The
     tile index's compiled kernels load meanwhile (``_preload_index_kernels``)."""
     _preload_index_kernels()
-    xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz.npy"), mode="w+",
-                                    dtype=np.float64, shape=(n, 3))
+    xyz = open_scratch(os.path.join(scratch, "xyz.npy"), (n, 3))
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     got = 0
@@ -327,10 +367,8 @@ def build_index(src: Source, target: int, scratch: str, side: float | None = Non
                               minlength=ncell)
     start = np.zeros(ncell + 1, dtype=np.int64)
     np.cumsum(counts, out=start[1:])
-    order = np.lib.format.open_memmap(os.path.join(scratch, "order.npy"), mode="w+",
-                                      dtype=np.int64, shape=(n,))
-    xyz = np.lib.format.open_memmap(os.path.join(scratch, "xyz_cells.npy"), mode="w+",
-                                    dtype=np.float64, shape=(n, 3))
+    order = open_scratch(os.path.join(scratch, "order.npy"), n, np.int64)
+    xyz = open_scratch(os.path.join(scratch, "xyz_cells.npy"), (n, 3))
     fill = start[:-1].copy()
     for s in range(0, n, CHUNK):
         pts = np.asarray(src.xyz[s:s + CHUNK], dtype=np.float64)
@@ -857,8 +895,7 @@ class _Runner:
         if os.path.exists(path):
             raise InvalidParameterError(f"scratch folder {self.scratch} already holds "
                                         f"{name}.npy (from another run?); give an empty one")
-        shape = (shape,) if np.isscalar(shape) else tuple(shape)
-        return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+        return open_scratch(path, shape, dtype)
 
     def close(self) -> None:
         """Remove the file ``_at_home`` reads."""

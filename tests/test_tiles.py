@@ -874,6 +874,69 @@ def test_cli_names_a_bad_budget_and_a_lost_task_and_writes_nothing(tmp_path, cap
     assert not dst.exists()
 
 
+def _no_room_for(name: str):
+    """A ``posix_fallocate`` whose disk is full for the files called ``name``."""
+    import errno
+
+    real = os.posix_fallocate
+
+    def fallocate(fd, offset, size):
+        if os.path.basename(os.readlink(f"/proc/self/fd/{fd}")) == name:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(fd, offset, size)
+
+    return fallocate
+
+
+@pytest.mark.skipif(not hasattr(os, "posix_fallocate"), reason="no posix_fallocate here")
+def test_scratch_maps_reserve_their_blocks_or_name_the_full_folder(tmp_path, monkeypatch):
+    # a memory map takes disk blocks as its pages are written, and a write to a
+    # full disk is answered with SIGBUS (the process dies without a word): the
+    # blocks are reserved when the map is made, where a full disk is an error
+    import errno
+
+    calls = []
+    real = os.posix_fallocate
+    monkeypatch.setattr(os, "posix_fallocate", lambda *a: calls.append(a[1:]) or real(*a))
+    arr = tiles.open_scratch(str(tmp_path / "a.npy"), (10, 3))
+    assert arr.shape == (10, 3) and not arr.any()
+    assert calls == [(0, os.path.getsize(tmp_path / "a.npy"))]
+
+    monkeypatch.setattr(os, "posix_fallocate", _no_room_for("b.npy"))
+    with pytest.raises(tiles.ScratchSpaceError,
+                       match=rf"scratch folder {tmp_path} has no room for b\.npy .*MiB free"):
+        tiles.open_scratch(str(tmp_path / "b.npy"), 1000, np.int64)
+    assert not (tmp_path / "b.npy").exists()
+
+    def unsupported(fd, offset, size):
+        raise OSError(errno.EOPNOTSUPP, "Operation not supported")
+
+    monkeypatch.setattr(os, "posix_fallocate", unsupported)  # nothing to check: kept
+    assert tiles.open_scratch(str(tmp_path / "c.npy"), 5).shape == (5,)
+
+
+@pytest.mark.skipif(not hasattr(os, "posix_fallocate"), reason="no posix_fallocate here")
+def test_cli_names_a_full_scratch_folder_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    # the tile index's first map finds the disk full (after the ingest's): one
+    # line naming the folder, no output, and the scratch folder removed
+    import tempfile
+
+    from pcprep.meshlab_bridge.cli import main
+
+    src, dst, tmp = tmp_path / "in.xyz", tmp_path / "out.xyz", tmp_path / "tmp"
+    tmp.mkdir()
+    np.savetxt(src, _surface(5000, seed=9, outliers=0))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    monkeypatch.setattr(os, "posix_fallocate", _no_room_for("order.npy"))
+    assert main(["outliers", str(src), str(dst), "--tiles", "1000", "--workers", "1",
+                 "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "pcprep: error:" in err and "has no room for order.npy" in err
+    assert "Traceback" not in err
+    assert not dst.exists()
+    assert not [p for p in tmp.iterdir() if p.name.startswith("pcprep-")]
+
+
 def _thread_use():
     from pcprep.filters import _kernels
 

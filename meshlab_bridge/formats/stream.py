@@ -174,7 +174,9 @@ def normals_into(path, n: int, out: str):
             parts.close()
             return None
         if arr is None:
-            arr = np.lib.format.open_memmap(out, mode="w+", dtype=np.float64, shape=(n, 3))
+            from ..tiles import open_scratch
+
+            arr = open_scratch(out, (n, 3))
         arr[start:start + len(cloud)] = cloud.normals
     if arr is not None:
         arr.flush()
