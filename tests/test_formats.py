@@ -597,3 +597,24 @@ def test_batch_runs_every_input_reports_failures_and_exits_non_zero(tmp_path, ca
     assert main(["saliency", *inputs[::2], "--out-dir", str(out)]) == 0
     assert main(["saliency", *inputs]) == 1  # three paths and no --out-dir
     assert "--out-dir" in capsys.readouterr().err
+
+
+def test_a_laz_write_that_fails_is_named_and_leaves_no_file(tmp_path, capsys, monkeypatch):
+    # lazrs reports a write that fails (a full disk, say) as LazrsError, a
+    # RuntimeError: one error line with the folder's free space, no traceback,
+    # and neither the output nor its temporary left behind
+    lazrs = pytest.importorskip("lazrs")
+    from laspy._compression import lazrsbackend
+
+    def full_disk(self):
+        raise lazrs.LazrsError("IoError: Failed to call write")
+
+    monkeypatch.setattr(lazrsbackend.LazrsPointWriter, "done", full_disk)
+    src = _random_las(tmp_path / "in.las", 1)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["outliers", str(src), str(out / "o.laz"), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "pcprep: error: cannot write" in err and "Failed to call write" in err
+    assert f"({out} has " in err and "MiB free)" in err and "Traceback" not in err
+    assert list(out.iterdir()) == []

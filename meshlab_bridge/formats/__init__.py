@@ -24,9 +24,10 @@ precision.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 import numpy as np
 
@@ -246,10 +247,28 @@ def _temporary(path: str):
             raise
         if isinstance(exc, (OSError, ValueError, TypeError)):
             raise PointCloudError(f"cannot write {path!r}: {_first_line(exc)}") from exc
+        if isinstance(exc, _codec_errors()):  # their message does not say why: the room does
+            free = shutil.disk_usage(folder).free
+            raise PointCloudError(f"cannot write {path!r}: {_first_line(exc)} ({folder} has "
+                                  f"{free / 2**20:.1f} MiB free)") from exc
         raise
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def _codec_errors() -> tuple:
+    """What LAS/LAZ writing raises when the file cannot be written: lazrs
+    reports a failed write (a full disk among them) as ``LazrsError``, a
+    RuntimeError, and laspy its own errors as ``LaspyException``."""
+    errors = []
+    with suppress(ImportError):
+        from lazrs import LazrsError
+        errors.append(LazrsError)
+    with suppress(ImportError):
+        from laspy.errors import LaspyException
+        errors.append(LaspyException)
+    return tuple(errors)
 
 
 def _in_main_thread() -> bool:
