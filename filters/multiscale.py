@@ -526,20 +526,19 @@ def otsu_threshold(values: np.ndarray, bins: int = 256, clip: float | None = Non
     3.0
     """
     v = np.asarray(values, dtype=np.float64).ravel()
+    clipped = None if clip is None else (lambda c: np.minimum(c, clip))
     scan = neighbors._SCAN
 
     def chunks():
         for s in range(0, len(v), scan):
-            yield v[s:s + scan] if clip is None else np.minimum(v[s:s + scan], clip)
+            yield v[s:s + scan] if clipped is None else clipped(v[s:s + scan])
 
-    lo, hi = np.inf, -np.inf
-    for c in chunks():
-        lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
+    lo, hi = neighbors._extent(v, clipped)
     if hi <= lo:
         return hi
     # more than ``bins`` distinct values among the first rows settles it without
     # sorting every value (a continuous score, the usual case)
-    head = v[:_DISTINCT_PROBE] if clip is None else np.minimum(v[:_DISTINCT_PROBE], clip)
+    head = v[:_DISTINCT_PROBE] if clipped is None else clipped(v[:_DISTINCT_PROBE])
     centers = _distinct_counts(chunks(), bins) if len(np.unique(head)) <= bins else None
     if centers is not None:
         centers, counts = centers

@@ -172,7 +172,7 @@ def median(x: np.ndarray, transform=None) -> float:
     n = len(x)
     if n <= MEDIAN_COPY_ROWS:
         return float(np.median(x if transform is None else transform(np.asarray(x))))
-    a, b = _middle(x, (n - 1) // 2, transform or (lambda c: c))
+    a, b = _middle(x, (n - 1) // 2, transform)
     return a if n % 2 else float(np.mean(np.array([a, b])))  # as np.median: (a + b) / 2
 
 
@@ -188,8 +188,8 @@ def quantile(x: np.ndarray, q: float) -> float:
     at = (n - 1) * q
     k = int(np.floor(at))
     if k >= n - 1:
-        return _extent(x, lambda c: c)[1]
-    a, b = _middle(x, k, lambda c: c)
+        return _extent(x)[1]
+    a, b = _middle(x, k)
     g = at - k
     return float(b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g)
 
@@ -228,9 +228,9 @@ def mean_std(x: np.ndarray) -> tuple[float, float]:
     return mean, float(np.sqrt(pairwise_sum(x, lambda c: np.square(c - mean)) / n))
 
 
-def _middle(x: np.ndarray, k: int, transform) -> tuple[float, float]:
-    """The ``k``-th and ``k + 1``-th smallest values of ``transform(x)`` (from
-    0), read in chunks of ``_SCAN`` rows.  Each round counts the values of
+def _middle(x: np.ndarray, k: int, transform=None) -> tuple[float, float]:
+    """The ``k``-th and ``k + 1``-th smallest values of ``x`` (of
+    ``transform(x)``, when given; from 0), read in chunks of ``_SCAN`` rows.  Each round counts the values of
     the window (at first every value) in ``_SELECT_BINS`` equal bins and
     keeps, as the next window, the bins that hold the two ranks; a value's
     bin is ``floor((v - lo) * scale)`` clipped to the bins, monotone in
@@ -248,7 +248,8 @@ def _middle(x: np.ndarray, k: int, transform) -> tuple[float, float]:
                                                   (np.float64, np.float64, np.int64, np.int64))]
         m, vmin, vmax, parts = 0, np.inf, -np.inf, []
         for s in range(0, len(x), _SCAN):
-            c = np.ascontiguousarray(transform(x[s:s + _SCAN]), dtype=np.float64)
+            c = x[s:s + _SCAN]
+            c = np.ascontiguousarray(c if transform is None else transform(c), dtype=np.float64)
             if _kernels.ENABLED:
                 out = np.empty(0 if count else len(c))  # noqa: NPY-empty -- [:got] is read
                 got, lo_c, hi_c = _kernels.select_window(c, *r, lo, scale, counts, out, count)
@@ -293,10 +294,12 @@ def _bins(v: np.ndarray, lo: float, scale: float) -> np.ndarray:
     return np.clip(np.floor((v - lo) * scale), 0, _SELECT_BINS - 1)
 
 
-def _extent(x: np.ndarray, transform) -> tuple[float, float]:
+def _extent(x: np.ndarray, transform=None) -> tuple[float, float]:
+    """The smallest and largest value of ``x`` (of ``transform(x)``, when
+    given), read in chunks of ``_SCAN`` rows."""
     lo, hi = np.inf, -np.inf
     for s in range(0, len(x), _SCAN):
-        c = transform(x[s:s + _SCAN])
+        c = x[s:s + _SCAN] if transform is None else transform(x[s:s + _SCAN])
         lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
     return lo, hi
 

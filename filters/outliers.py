@@ -117,7 +117,8 @@ def remove_outliers(points, normals=None, *, method: str = "statistical", k: int
         threshold = float(score.mean() + std_ratio * score.std())
         out = score > threshold
     else:
-        counts = tree.query_ball_point(pts, r=radius * h, return_length=True, workers=_kernels.tree_workers())
+        counts = tree.query_ball_point(pts, r=radius * h, return_length=True,
+                                       workers=_kernels.tree_workers())
         score = np.asarray(counts, dtype=np.float64) - 1.0  # the point itself
         threshold = float(min_neighbors)
         out = score < threshold

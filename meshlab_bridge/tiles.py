@@ -557,7 +557,7 @@ def tile_target(tiles, client, n: int) -> int:
     ``BYTES_PER_POINT`` bytes per point."""
     if tiles is None or tiles == "auto":
         rooms = [((w.get("memory_limit") or 4 << 30) - WORKER_AT_REST) // w.get("nthreads", 1)
-                 for w in client.scheduler_info()["workers"].values()]
+                 for w in _workers(client)]
         room = max(0, min(rooms, default=(4 << 30) - WORKER_AT_REST))
         return int(max(10_000, min(n, room // (2 * BYTES_PER_POINT))))
     t = int(tiles)
@@ -566,15 +566,20 @@ def tile_target(tiles, client, n: int) -> int:
     return t
 
 
+def _workers(client) -> list:
+    """The scheduler's record of each of the client's workers."""
+    return list(client.scheduler_info()["workers"].values())
+
+
 def _slots(client) -> int:
     """Tasks the client's workers run at once: their threads."""
-    return sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+    return sum(w.get("nthreads", 1) for w in _workers(client))
 
 
 def _worker_limit(client) -> int:
     """The smallest memory limit of the client's workers in bytes; 0 when
     none has one."""
-    limits = [w.get("memory_limit") or 0 for w in client.scheduler_info()["workers"].values()]
+    limits = [w.get("memory_limit") or 0 for w in _workers(client)]
     return min(limits) if limits and min(limits) > 0 else 0
 
 
