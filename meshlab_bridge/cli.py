@@ -94,11 +94,30 @@ def _add_scale_options(p, same: str) -> None:
     big.add_argument("--memory-budget", default=None, metavar="BYTES",
                      help="memory limit per local worker (e.g. 4GB, at least 768MiB; "
                           "default: the machine's memory shared out)")
+    big.add_argument("--scratch", default=None, metavar="DIR",
+                     help="folder for the run's per-point arrays, in a subfolder removed "
+                          "at the end (about 80-450 bytes per point, checked before the "
+                          "run starts; default: the system's temporary folder, TMPDIR)")
     big.add_argument("--worker-io", default=None, choices=("auto", "on", "off"),
                      help="on: the workers cut their tiles from the scratch folder and "
                           "write their results into it (every worker on this host; "
                           "checked); off: the driver does, for any cluster; auto "
                           "(default): on wherever possible.  Same results either way")
+
+
+def _scratch_folder(base: str | None, prefix: str) -> str:
+    """A new subfolder of ``base`` (``--scratch``; default the system's
+    temporary folder) for a tiled run's arrays, or an error naming ``base``."""
+    import tempfile
+
+    where = base if base is not None else tempfile.gettempdir()
+    if not os.path.isdir(where):
+        raise InvalidParameterError(f"--scratch: {where} is not a folder")
+    try:
+        return tempfile.mkdtemp(prefix=prefix, dir=where)
+    except OSError as exc:
+        raise InvalidParameterError(f"--scratch: cannot make a folder in {where} "
+                                    f"({exc.strerror})") from None
 
 
 def _tiles(text: str):
@@ -207,7 +226,6 @@ def _cmd_info_tiled(args) -> None:
     spacing rows by tiles on Dask (``tiles.spacing_rows``).  Formats read
     whole are read whole."""
     import shutil
-    import tempfile
 
     from pcprep.filters.neighbors import SPACING_K
 
@@ -224,7 +242,7 @@ def _cmd_info_tiled(args) -> None:
         return
     meta, n, dropped, ranges = {}, 0, [], FieldRanges()
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    scratch = tempfile.mkdtemp(prefix="pcprep-info-")
+    scratch = _scratch_folder(args.scratch, "pcprep-info-")
     try:
         finite_path = os.path.join(scratch, "finite.raw")
         with open(finite_path, "wb") as finite_out:
@@ -381,7 +399,6 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     maps, the filter run tile by tile on Dask, the result streamed out with
     every attribute (meshlab_bridge/tiles.py)."""
     import shutil
-    import tempfile
 
     from . import formats, tiles
     from .formats import stream
@@ -393,9 +410,13 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)
     tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
-    scratch = tempfile.mkdtemp(prefix="pcprep-tiles-")
+    scratch = _scratch_folder(args.scratch, "pcprep-tiles-")
     try:
         n = stream.point_count(src)
+        # the room for every array before anything is read (its normals, if the
+        # file has them, are counted by run_tiled once they are read)
+        tiles.check_scratch(scratch, tiles.scratch_need(spec.command, spec.resolve(dict(params)),
+                                                        n), spec.command)
         # the cluster before the ingest: an attached one's workers warm up meanwhile
         with tiles.dask_client(workers=args.workers, scheduler=args.scheduler,
                                memory_budget=args.memory_budget) as client:

@@ -150,7 +150,7 @@ def open_scratch(path: str, shape, dtype=np.float64) -> np.memmap:
         raise ScratchSpaceError(
             exc.errno, f"the scratch folder {folder} has no room for "
             f"{os.path.basename(path)} ({size / 2**20:.0f} MiB; {free / 2**20:.0f} MiB "
-            "free): give a folder with more room (scratch=, or TMPDIR for the "
+            "free): give a folder with more room (scratch=, or --scratch for the "
             "command line)") from None
     return arr
 
@@ -856,6 +856,14 @@ def _shares_scratch(client, scratch: str):
     return home if shared else None
 
 
+def _in_folder(values, folder: str) -> bool:
+    """Is ``values`` a whole float64 ``.npy`` memory map in ``folder``."""
+    return (isinstance(values, np.memmap) and isinstance(values.base, mmap.mmap)
+            and values.dtype == np.float64 and values.filename is not None
+            and values.filename.endswith(".npy")
+            and os.path.dirname(values.filename) == os.path.abspath(folder))
+
+
 class _Runner:
     """One pass over the tiles: submit, collect, re-run a tile whose halo was
     too narrow with a wider one, and check that every core row came once.
@@ -926,6 +934,13 @@ class _Runner:
         for s0 in range(0, len(values), CHUNK):
             out[s0:s0 + CHUNK] = values[s0:s0 + CHUNK]
         return out
+
+    def stored(self, name: str, values: np.ndarray) -> np.ndarray:
+        """``values`` as a stored array: itself where it is a whole float64
+        ``.npy`` memory map in the scratch folder (the command line streams a
+        file's normals there; a view's base is its parent map, not the file's),
+        else ``on_disk(name, values)``."""
+        return values if _in_folder(values, self.scratch) else self.on_disk(name, values)
 
     def rows_where(self, name: str, mask: np.ndarray, value: bool = True) -> np.ndarray:
         """The rows where ``mask`` is ``value``, ascending, into ``store(name)``
@@ -1173,6 +1188,10 @@ def run_tiled(name: str, points=None, normals=None, *, source: Source | None = N
         _check_cloud(spec, source, resolved)
         if normals is not None:
             normals = _checked_normals(spec, normals, source.n)
+        check_scratch(scratch, scratch_need(
+            spec.command, resolved, source.n, positions=False,
+            normals=None if normals is None else
+            "stored" if _in_folder(normals, scratch) else "copy"), spec.command)
         with dask_client(client, workers=workers, scheduler=scheduler,
                          memory_budget=memory_budget, threads=threads) as cl:
             import time
@@ -1385,7 +1404,7 @@ def _denoise(runner, src, normals, h, prm) -> TiledResult:
     pos = runner.store("points", (n, 3))
     nrm = runner.store("normals", (n, 3))
     score = runner.store("edge_score", n)
-    given = None if normals is None else runner.on_disk("given_normals", normals)
+    given = None if normals is None else runner.stored("given_normals", normals)
     plan: list = []
     runs = 0
     while True:
@@ -1517,7 +1536,7 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
 
     n = src.n
     nrm = runner.store("normals", (n, 3))
-    given = None if normals is None else runner.on_disk("given_normals", normals)
+    given = None if normals is None else runner.stored("given_normals", normals)
     sums, align = {}, []
 
     def collect_mean(cell, res):
@@ -1845,7 +1864,7 @@ def _simplify(runner, src, normals, h, prm) -> TiledResult:
     sigma = runner.store("sigma", n)
     rows6 = runner.store("rows6", n)
 
-    given = None if normals is None else runner.on_disk("given_normals", normals)
+    given = None if normals is None else runner.stored("given_normals", normals)
     base = dict(centre=centre, h=h, n_total=n, k=k)
     runner.run("simplify features", sd.sdbs_tile, _knn_reach(max(k, sd.GRAPH_K)) * h,
                dict(base, stage="features"),
@@ -1921,3 +1940,66 @@ def _sharp_k_max(prm: dict) -> int:
     from pcprep.filters import sharp
 
     return sharp.split_params(prm)[1].k_max
+
+
+def scratch_need(command: str, prm: dict, n: int, *, positions: bool = True,
+                 normals: str | None = None) -> int:
+    """The bytes a tiled run of ``command`` (its resolved parameters ``prm``)
+    on ``n`` points still has to put in its scratch folder, at the least: the
+    tile index, every per-row array its family stores and, with
+    ``positions``, the positions (not yet ingested).  ``normals``: None when
+    the run is given no normals (then the tiles' signs are stored instead),
+    ``"stored"`` when they are in the folder already, ``"copy"`` when they
+    are copied there (``_Runner.stored``).  Left out are the
+    arrays that may not be made or do not stay: a pass's 1-byte row count
+    (removed after the pass) and SDBS's δ trials past the first (1 byte per
+    row each).  So a folder with less free room than this cannot hold the
+    run, and ``check_scratch`` refuses it before anything is read; one with
+    more may still run short later, which ``open_scratch`` reports."""
+    prm = {k: v for k, v in prm.items() if k != "preset"}  # refused by run_tiled
+    row = 32 + 24 * positions  # the index's row order and cell-ordered positions
+    given = {None: 0, "stored": 0, "copy": 24}[normals]
+    signs = 8 if normals is None else 0  # the owner of every row, to align tile signs
+    spacing = 8  # every family's mean 6-NN distances (h)
+    if command == "outliers":  # the score, its mask and the two row lists (8 B in all)
+        row += spacing + 8 * (prm["method"] == "statistical") + 8 + 1 + 8
+    elif command == "denoise":  # points, normals, edge score and mask; tile signs
+        row += spacing + 24 + 24 + 8 + 1 + given + signs
+    elif command == "saliency":  # normals; residual, sparsity, accumulation, two saliencies
+        row += spacing + 24 + given + signs + 5 * 8
+    elif command == "features":  # four columns per scale; normals; ridge, score, masks
+        from pcprep.filters import sharp
+        from pcprep.filters.multiscale import scale_sizes
+
+        stage = sharp.split_params(prm)[1]
+        n_ks = len(scale_sizes(stage.k_min, stage.k_max, stage.n_scales))
+        row += spacing + 32 * n_ks + 24 + 8 + 8 + 1 + 8 + 1 + 8
+    elif command == "holes":  # three columns per scale; five point-wise columns; score
+        from pcprep.filters import holes
+        from pcprep.filters.multiscale import scale_sizes
+
+        stage = holes.split_params(prm)[1]
+        n_s = len(scale_sizes(stage.k_min, stage.k_max, stage.n_scales))
+        row += spacing + 24 * n_s + 5 * 8 + 8 + 1 + 8
+    elif command == "simplify":  # normals, σ, 6-NN rows, 7 features, codes, scores, radii
+        from pcprep.filters import simplify as sd
+
+        target = sd.target_count(prm["ratio"], prm["count"], n, "simplify_sdbs")
+        row += spacing + given + 24 + 8 + 8 + 56 + 6 * 8 + (target is None or target < n)
+        return row * n + 8 * (target or 0)  # the kept rows' list
+    else:
+        raise InvalidParameterError(f"unknown tiled filter {command!r}")
+    return row * n
+
+
+def check_scratch(folder: str, need: int, what: str) -> None:
+    """Refuse a scratch folder with less free room than ``need`` bytes
+    (``scratch_need``), naming both, before the run reads anything."""
+    free = shutil.disk_usage(folder).free
+    log.info("%s: the scratch folder %s needs at least %.1f GiB (%.1f GiB free)", what,
+             folder, need / 2**30, free / 2**30)
+    if free < need:
+        raise ScratchSpaceError(
+            errno.ENOSPC, f"{what}: the run needs at least {need / 2**20:,.1f} MiB in the "
+            f"scratch folder {folder}, which has {free / 2**20:,.1f} MiB free: give a folder "
+            "with more room (scratch=, or --scratch for the command line)")

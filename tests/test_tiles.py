@@ -937,6 +937,94 @@ def test_cli_names_a_full_scratch_folder_and_leaves_nothing(tmp_path, capsys, mo
     assert not [p for p in tmp.iterdir() if p.name.startswith("pcprep-")]
 
 
+def _scratch_peak(monkeypatch):
+    """Spy on open_scratch: the largest sum of the ``.npy`` files in the
+    folder just after an array is made (files only go away between passes)."""
+    peak = [0]
+    real = tiles.open_scratch
+
+    def spy(path, shape, dtype=np.float64):
+        arr = real(path, shape, dtype)
+        peak[0] = max(peak[0], sum(e.stat().st_size for e in os.scandir(os.path.dirname(path))
+                                   if e.name.endswith(".npy")))
+        return arr
+
+    monkeypatch.setattr(tiles, "open_scratch", spy)
+    return peak
+
+
+@pytest.mark.parametrize("name,params,with_normals", [
+    ("outliers", {}, False), ("outliers", {"method": "radius"}, False),
+    ("denoise", DENOISE, False), ("denoise", DENOISE, True), ("saliency", {}, True),
+    ("features", {}, False), ("features", {"n_scales": 3}, False), ("holes", {}, False),
+    ("simplify", {"ratio": 0.3}, False)])
+def test_scratch_need_is_what_the_run_keeps_on_disk(client, monkeypatch, name, params,
+                                                   with_normals):
+    # the check before a run counts every array the run stores; nothing it
+    # counts is left out, nor is anything counted that is not made (the .npy
+    # headers aside; SDBS's δ trials past the first: 1 B per row each)
+    from pcprep.meshlab_bridge import registry
+
+    pts = _family_case(name)[0]
+    normals = _surface_normals(pts, seed=4) if with_normals else None
+    peak = _scratch_peak(monkeypatch)
+    res = tiles.run_tiled(name, pts, normals, params=params, client=client, tiles=1500)
+    spec = tiles._spec(registry, name)
+    need = tiles.scratch_need(spec.command, spec.resolve(dict(params)), len(pts),
+                              normals="copy" if with_normals else None)
+    extra = res.stats.get("greedy_passes", 1) - 1
+    assert need <= peak[0] <= need + extra * len(pts) + 4096
+
+
+def test_normals_in_the_scratch_folder_are_read_in_place(client, tmp_path, monkeypatch):
+    # the command line streams a file's normals into the scratch folder; the
+    # run reads them there instead of copying them (24 B per point less)
+    from pcprep.meshlab_bridge import registry
+
+    pts, normals, params = _family_case("denoise")
+    ref = tiles.run_tiled("denoise", pts, normals, params=params, client=client, tiles=1500)
+    stored = tiles.open_scratch(str(tmp_path / "input_normals.npy"), normals.shape)
+    stored[:] = normals
+    peak = _scratch_peak(monkeypatch)
+    res = tiles.run_tiled("denoise", pts, stored, params=params, client=client, tiles=1500,
+                          scratch=str(tmp_path))
+    assert not (tmp_path / "given_normals.npy").exists()
+    assert np.array_equal(np.asarray(res.fields["points"]), ref.fields["points"])
+    spec = tiles._spec(registry, "denoise")
+    need = tiles.scratch_need("denoise", spec.resolve(dict(params)), len(pts),
+                              normals="stored")
+    added = peak[0] - os.path.getsize(tmp_path / "input_normals.npy")
+    assert need <= added <= need + 4096
+    view = stored[: len(pts) // 2]  # a view is not the whole file: copied
+    assert tiles._in_folder(stored, str(tmp_path)) and not tiles._in_folder(view, str(tmp_path))
+
+
+def test_cli_refuses_a_scratch_folder_without_room_before_reading(tmp_path, capsys,
+                                                                 monkeypatch):
+    # --scratch names the folder; one without the room the run needs is
+    # refused with both sizes before the file is read, and nothing is left
+    import shutil
+
+    from pcprep.meshlab_bridge.cli import main
+
+    src, dst, tmp = tmp_path / "in.xyz", tmp_path / "out.xyz", tmp_path / "tmp"
+    tmp.mkdir()
+    np.savetxt(src, _surface(5000, seed=9, outliers=0))
+    real = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage",
+                        lambda p: real(p)._replace(free=89 * 5000 - 1))  # outliers: 89 B/pt
+    monkeypatch.setattr(tiles, "ingest", lambda *a: pytest.fail("the file was read"))
+    argv = ["outliers", str(src), str(dst), "--tiles", "1000", "--workers", "1", "--quiet"]
+    assert main(argv + ["--scratch", str(tmp)]) == 1
+    err = capsys.readouterr().err
+    assert f"outliers: the run needs at least 0.4 MiB in the scratch folder {tmp}{os.sep}" \
+        "pcprep-tiles-" in err and ", which has 0.4 MiB free" in err, err
+    assert "Traceback" not in err
+    assert not dst.exists() and not list(tmp.iterdir())
+    assert main(argv + ["--scratch", str(tmp_path / "none")]) == 1
+    assert "--scratch: " + str(tmp_path / "none") + " is not a folder" in capsys.readouterr().err
+
+
 def _thread_use():
     from pcprep.filters import _kernels
 
