@@ -177,6 +177,47 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
     assert b"end_header" in whole.read_bytes()[:2000]
 
 
+@pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "simplify"])
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_streamed_las_from_another_format_is_the_file_written_whole(tmp_path, monkeypatch,
+                                                                    name, ext):
+    """PLY in, LAS/LAZ out, block by block: a first pass over the written rows
+    gives the header's scale and offset, which depend on every row; the
+    points and header are then those ``las.write`` gives the whole result, and
+    the input is never read whole."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.convert import quality_ramp
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get(name)
+    src = _ply_float32(tmp_path / "in.ply", 2500, "<")
+    cloud = formats.read_cloud(src)
+    params = {"ratio": 0.3} if name == "simplify" else {}
+    if name == "outliers":
+        params = {"method": "radius", "radius": 1.0}
+    fields = _result_fields(spec, spec.func(cloud.points, **params))
+    if name == "denoise":  # moved rows: the extent is the result's, not the input's
+        fields["points"] = fields["points"] * 1.5 - 7.0
+    out = result_cloud(spec, cloud, SimpleNamespace(**fields))
+    if spec.kind == "scalar":
+        out = out.with_(colors=quality_ramp(out.quality))
+    whole, streamed = tmp_path / ("whole" + ext), tmp_path / ("streamed" + ext)
+    formats.write_cloud(out, whole)
+    monkeypatch.setattr(stream, "read_cloud", lambda *a: pytest.fail("read whole"))
+    assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
+    a, b = laspy.read(whole), laspy.read(streamed)
+    assert np.array_equal(a.header.scales, b.header.scales)
+    assert np.array_equal(a.header.offsets, b.header.offsets)
+    assert a.header.point_format.id == b.header.point_format.id
+    assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
+    assert np.array_equal(a.points.array, b.points.array)
+    assert np.allclose(np.c_[b.x, b.y, b.z], out.points, rtol=0, atol=b.header.scales[0])
+
+
 def test_streamed_ply_column_type_is_settled_over_every_block(tmp_path):
     """Float32 positions that a filter leaves unchanged in one block and moves in
     another are float64 in the whole file, as when it is written whole."""

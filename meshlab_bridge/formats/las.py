@@ -97,13 +97,15 @@ def _crs_text(header) -> str | None:
     return None
 
 
-def _new_header(cloud: Cloud):
+def new_header(lo: np.ndarray, hi: np.ndarray, colors: bool):
+    """The LAS 1.4 header of a cloud from another format whose positions span
+    ``lo``..``hi``: point format 7 with colours, else 6; the offset at the
+    floor of ``lo`` and the finest power-of-ten scale that spans the extent."""
     import laspy
 
-    fmt = 7 if cloud.colors is not None else 6
-    header = laspy.LasHeader(point_format=fmt, version="1.4")
-    lo = np.floor(cloud.points.min(axis=0))
-    extent = float(np.max(cloud.points.max(axis=0) - lo))
+    header = laspy.LasHeader(point_format=7 if colors else 6, version="1.4")
+    lo = np.floor(lo)
+    extent = float(np.max(hi - lo))
     # the finest power-of-ten scale whose int32 range still spans the extent
     scale = 10.0 ** np.ceil(np.log10(max(extent, 1e-300) / 2.0e9))
     header.offsets = lo
@@ -126,13 +128,15 @@ def write(cloud: Cloud, path: str) -> None:
     las.write(path, do_compress=path.lower().endswith(".laz"), laz_backend=laz_backend())
 
 
-def output_header(cloud: Cloud, path: str):
-    """The header ``cloud`` is written with (the input's, plus an extra
-    dimension per new attribute) and the columns to write, by name."""
+def output_header(cloud: Cloud, path: str, base=None):
+    """The header ``cloud`` is written with (``base``, else the input's, else
+    ``new_header`` over its points; plus an extra dimension per new
+    attribute) and the columns to write, by name."""
     import laspy
 
-    header = cloud.meta.get("las_header")
-    header = copy.deepcopy(header) if header is not None else _new_header(cloud)
+    header = base if base is not None else cloud.meta.get("las_header")
+    header = copy.deepcopy(header) if header is not None else new_header(
+        cloud.points.min(axis=0), cloud.points.max(axis=0), cloud.colors is not None)
     existing = set(header.point_format.dimension_names)
     columns = output_columns(cloud, header)
     new = [laspy.ExtraBytesParams(name=n, type=_extra_type(np.asarray(v)))

@@ -10,15 +10,16 @@ through libe57's reader with block-sized buffers; the other formats are read
 whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
 input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57,
-binary PCD or a binary PLY of vertices alone: to LAS/LAZ from LAS/LAZ (laspy's writer; the
-input's header, new results as extra dimensions; a removal copies the kept
-rows' records as they are), to binary PLY (plyfile's header, then the rows;
-the same bytes ``ply.write`` gives the whole result), to XYZ and to binary
-PCD.  Other pairs
-go through ``read_cloud``/``write_cloud`` with the cloud in memory (a LAS
-header's scale and offset, written from another format, need the whole
-cloud's extent).  Every write is atomic; a reader refuses what reading the
-whole file refuses.
+binary PCD or a binary PLY of vertices alone: to LAS/LAZ (laspy's writer;
+from LAS/LAZ under the input's header, new results as extra dimensions, a
+removal copying the kept rows' records as they are; from another format under
+the header ``las.write`` gives the whole result, its scale and offset from a
+first pass over the written rows' positions), to binary PLY (plyfile's header,
+then the rows; the same bytes ``ply.write`` gives the whole result), to XYZ
+and to binary PCD.  E57 out (pye57 writes a scan from whole arrays) and the
+inputs read whole go through ``read_cloud``/``write_cloud`` with the cloud in
+memory.  Every write is atomic; a reader refuses what reading the whole file
+refuses.
 """
 
 from __future__ import annotations
@@ -192,8 +193,7 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
-    if blocks is None or not (to in (".ply", ".xyz", ".pcd") or
-                              (to in _STREAMED and _ext(src) in _STREAMED)):
+    if blocks is None or to not in (".ply", ".xyz", ".pcd") + _STREAMED:
         # no chunked reader or writer for the pair: the cloud in memory, written whole
         from . import write_cloud
 
@@ -211,9 +211,29 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
     if to == ".pcd":
         count = n if keep is None else int(keep.sum())
         return _write_pcd(_results(spec, blocks(size), fields, keep), dst, count)
+    if _ext(src) not in _STREAMED:  # a new header, over every written row's position
+        return _write_las(_results(spec, blocks(size), fields, keep), dst,
+                          _header_over(_results(spec, blocks(size), fields, keep)))
     if keep is not None and not spec.scalar_field:
         return _write_kept_records(src, dst, keep, size)
     return _write_las(_results(spec, blocks(size), fields, keep), dst)
+
+
+def _header_over(outputs):
+    """``las.new_header`` over the rows of ``outputs`` (a first pass over the
+    result): the header ``las.write`` gives the whole result, whose scale and
+    offset depend on every row's position."""
+    from . import las
+
+    lo, hi, colors = np.full(3, np.inf), np.full(3, -np.inf), False
+    for out in outputs:
+        colors = colors or out.colors is not None
+        if len(out):
+            lo = np.minimum(lo, out.points.min(axis=0))
+            hi = np.maximum(hi, out.points.max(axis=0))
+    if not np.isfinite(lo).all():  # nothing to write
+        lo = hi = np.zeros(3)
+    return las.new_header(lo, hi, colors)
 
 
 def _kept(spec, fields: dict, n: int):
@@ -285,19 +305,20 @@ def _results(spec, blocks, fields: dict, keep):
         yield out
 
 
-def _write_las(outputs, dst: str) -> int:
-    """LAS/LAZ block by block under the input's header (laspy's writer)."""
+def _write_las(outputs, dst: str, header=None) -> int:
+    """LAS/LAZ block by block under ``header`` (by default the input's; new
+    results as extra dimensions) with laspy's writer."""
     import laspy
 
     from . import las
 
     written = 0
     with _temporary(dst) as tmp:
-        writer = header = None
+        writer = None
         try:
             for out in outputs:
                 if writer is None:
-                    header, _ = las.output_header(out, dst)
+                    header, _ = las.output_header(out, dst, base=header)
                     writer = laspy.open(tmp, mode="w", header=header,
                                         laz_backend=laz_backend(),
                                         do_compress=dst.lower().endswith(".laz"))
