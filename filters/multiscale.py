@@ -418,7 +418,7 @@ def fit_score_model(F: np.ndarray, cfg: ScoreConfig) -> ScoreModel:
 
     _kernels.run_chunks(hash_rows, len(F), CHUNK)
     train = sparse.first_in_order(keys, cfg.max_train)
-    del keys
+    keys = None  # freed before the training rows are standardised
     Zt = standardise(F[train], med, scale)
     D = sparse.ksvd(Zt, cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
                     max_train=len(train), seed=cfg.seed, code_all=False).dictionary

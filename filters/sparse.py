@@ -151,7 +151,6 @@ def code_length(codes, X, D) -> tuple[np.ndarray, np.ndarray]:
 def _omp_chunk(X, D, L, tol):
     """Batched OMP on one chunk; returns (support (c, L) int, coef (c, L))."""
     c, d = X.shape
-    S = D.shape[0]
     sup = np.zeros((c, L), dtype=np.int64)
     coef = np.zeros((c, L))
     live = np.ones(c, dtype=bool)
@@ -592,9 +591,9 @@ def _update_atoms_numpy(D, sup, coef, E_all, pos, starts):
         if p.size == 0:
             unused.append(j)
             continue
-        r, l = np.divmod(p, sup.shape[1])
+        r, slot = np.divmod(p, sup.shape[1])
         # E_j restricted to ω_j: residual with atom j's contribution put back
-        Ej = E_all[r] + coef[r, l][:, None] * D[j][None, :]
+        Ej = E_all[r] + coef[r, slot][:, None] * D[j][None, :]
         # rank-1 SVD via the (d × d) scatter matrix: d_j = top eigenvector
         ev, evec = np.linalg.eigh(Ej.T @ Ej)
         dj = evec[:, -1]
@@ -602,7 +601,7 @@ def _update_atoms_numpy(D, sup, coef, E_all, pos, starts):
             dj = -dj
         new = Ej @ dj
         D[j] = dj
-        coef[r, l] = new
+        coef[r, slot] = new
         E_all[r] = Ej - new[:, None] * dj[None, :]
     return unused
 

@@ -56,7 +56,10 @@ class Cloud:
         """The cloud restricted to rows ``idx`` (in that order); faces whose
         three vertices are all kept are renumbered, the others dropped."""
         idx = np.asarray(idx, dtype=np.int64)
-        take = (lambda a: None if a is None else a[idx])
+
+        def take(a):
+            return None if a is None else a[idx]
+
         faces = None
         if keep_faces and self.faces is not None and len(self.faces):
             new = np.full(len(self.points), -1, dtype=np.int64)
