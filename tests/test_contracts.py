@@ -86,7 +86,7 @@ def test_parameters_are_declared_once(spec):
     flags = {a.dest: a for a in sub.choices[spec.command]._actions if a.option_strings}
     assert set(flags) - {"help", "quiet", "drop_nonfinite", "out_dir", "format",
                          "save_mlx", "tiles", "workers", "scheduler",
-                         "memory_budget", "worker_io"} == set(keyword)
+                         "memory_budget", "worker_io", "scratch"} == set(keyword)
     for p in spec.params:
         assert f"--{p.name.replace('_', '-')}" in flags[p.name].option_strings
         assert tuple(flags[p.name].choices or ()) == p.choices
