@@ -81,7 +81,8 @@ def _add_filter_command(sub, spec) -> None:
 
 
 def _add_scale_options(p, same: str) -> None:
-    big = p.add_argument_group("large clouds (tiles with a halo on Dask; needs pcprep[scale])")
+    big = p.add_argument_group(
+        "large clouds (any of these runs tile by tile with a halo on Dask; needs pcprep[scale])")
     big.add_argument("--tiles", default=None, type=_tiles, metavar="auto|N",
                      help="run tile by tile: N core points per tile, or auto (from the "
                           f"memory budget); {same}")
@@ -95,7 +96,7 @@ def _add_scale_options(p, same: str) -> None:
                      help="memory limit per local worker (e.g. 4GB, at least 768MiB; "
                           "default: the machine's memory shared out)")
     big.add_argument("--scratch", default=None, metavar="DIR",
-                     help="folder for the run's per-point arrays, in a subfolder removed "
+                     help="folder for a tiled run's per-point arrays, in a subfolder removed "
                           "at the end (about 80-450 bytes per point, checked before the "
                           "run starts; default: the system's temporary folder, TMPDIR)")
     big.add_argument("--worker-io", default=None, choices=("auto", "on", "off"),
@@ -380,8 +381,10 @@ def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -
 
 
 def _tiled(args) -> bool:
+    """Any of the large-cloud options asks for a tiled run."""
     return any(getattr(args, a, None) is not None
-               for a in ("tiles", "workers", "scheduler", "memory_budget", "worker_io"))
+               for a in ("tiles", "workers", "scheduler", "memory_budget", "worker_io",
+                         "scratch"))
 
 
 def _require_dask(command: str) -> None:

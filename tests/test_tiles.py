@@ -1021,6 +1021,9 @@ def test_cli_refuses_a_scratch_folder_without_room_before_reading(tmp_path, caps
         "pcprep-tiles-" in err and ", which has 0.4 MiB free" in err, err
     assert "Traceback" not in err
     assert not dst.exists() and not list(tmp.iterdir())
+    # --scratch alone asks for a tiled run (it is not ignored by a one-piece run)
+    assert main(argv[:3] + ["--quiet", "--scratch", str(tmp)]) == 1
+    assert ", which has 0.4 MiB free" in capsys.readouterr().err
     assert main(argv + ["--scratch", str(tmp_path / "none")]) == 1
     assert "--scratch: " + str(tmp_path / "none") + " is not a folder" in capsys.readouterr().err
 
