@@ -1996,8 +1996,8 @@ def check_scratch(folder: str, need: int, what: str) -> None:
     """Refuse a scratch folder with less free room than ``need`` bytes
     (``scratch_need``), naming both, before the run reads anything."""
     free = shutil.disk_usage(folder).free
-    log.info("%s: the scratch folder %s needs at least %.1f GiB (%.1f GiB free)", what,
-             folder, need / 2**30, free / 2**30)
+    log.debug("%s: the scratch folder %s needs at least %.1f MiB more (%.1f MiB free)",
+              what, folder, need / 2**20, free / 2**20)
     if free < need:
         raise ScratchSpaceError(
             errno.ENOSPC, f"{what}: the run needs at least {need / 2**20:,.1f} MiB in the "
