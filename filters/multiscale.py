@@ -411,14 +411,13 @@ def fit_score_model(F: np.ndarray, cfg: ScoreConfig) -> ScoreModel:
     med, scale = column_scale(F)
     d = F.shape[1]
     L = max(1, min(d, cfg.n_atoms) // 10)
-    keys = np.empty(len(F), dtype=np.uint64)  # noqa: NPY-empty -- every chunk written below
+    first = sparse.FirstInOrder(cfg.max_train)  # not one key per row kept
 
     def hash_rows(s0: int, e: int) -> None:     # NumPy releases the GIL: threads
-        keys[s0:e] = sparse.content_keys(standardise(F[s0:e], med, scale), cfg.seed)
+        first.add(sparse.content_keys(standardise(F[s0:e], med, scale), cfg.seed), s0)
 
     _kernels.run_chunks(hash_rows, len(F), CHUNK)
-    train = sparse.first_in_order(keys, cfg.max_train)
-    keys = None  # freed before the training rows are standardised
+    train = first.rows()
     Zt = standardise(F[train], med, scale)
     D = sparse.ksvd(Zt, cfg.n_atoms, n_nonzero_coefs=L, max_iter=cfg.max_iter,
                     max_train=len(train), seed=cfg.seed, code_all=False).dictionary

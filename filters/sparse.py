@@ -659,6 +659,53 @@ def first_in_order(keys: np.ndarray, m: int) -> np.ndarray:
     return cand[np.argsort(keys[cand], kind="stable")[:m]]
 
 
+class FirstInOrder:
+    """``first_in_order`` of a key array fed chunk by chunk: ``add(keys,
+    start)`` takes the keys of rows ``start:start + len(keys)`` (from any
+    thread, chunks in any order), ``rows()`` gives
+    ``np.argsort(all keys, kind="stable")[:m]``.
+
+    Each chunk keeps its own m first rows, which are merged into the m first
+    so far by (key, row): the stable sort's order, since it breaks ties by
+    row.  So the memory is 2m keys and rows, not one key per row of the
+    cloud and its partition's copy (16 B per row in the driver of a tiled
+    run).  For m above ``MERGE_MAX`` the merges
+    would sort more than they save, so the chunks are kept and selected from
+    whole."""
+
+    #: the largest m merged chunk by chunk
+    MERGE_MAX = 1 << 20
+
+    def __init__(self, m: int):
+        import threading
+
+        self.m = int(m)
+        self._keys = self._rows = None
+        self._parts: list = []
+        self._lock = threading.Lock()
+
+    def add(self, keys: np.ndarray, start: int) -> None:
+        keys = np.asarray(keys)
+        if self.m > self.MERGE_MAX:
+            with self._lock:
+                self._parts.append((start, keys))
+            return
+        local = first_in_order(keys, self.m)
+        k, r = keys[local], local + start
+        with self._lock:
+            if self._keys is not None:
+                k, r = np.concatenate([self._keys, k]), np.concatenate([self._rows, r])
+                order = np.lexsort((r, k))[:self.m]
+                k, r = k[order], r[order]
+            self._keys, self._rows = k, r
+
+    def rows(self) -> np.ndarray:
+        if self._parts:
+            self._parts.sort(key=lambda part: part[0])
+            return first_in_order(np.concatenate([p[1] for p in self._parts]), self.m)
+        return np.empty(0, np.int64) if self._rows is None else self._rows.astype(np.int64)
+
+
 def ksvd(X, n_atoms: int, *, n_nonzero_coefs: int | None = None, tol: float | None = None,
          max_iter: int = 10, max_train: int = 20_000, seed: int | None = None,
          code_all: bool = True, order=None) -> KSVDResult:

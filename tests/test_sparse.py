@@ -220,3 +220,26 @@ def test_first_in_order_is_the_head_of_the_stable_argsort(rng):
     for m in (1, 7, 4000, 5000, 6000):
         np.testing.assert_array_equal(first_in_order(keys, m),
                                       np.argsort(keys, kind="stable")[:m])
+
+
+@pytest.mark.parametrize("merged", [True, False])
+def test_first_in_order_by_chunks_is_the_head_of_the_stable_argsort(rng, monkeypatch, merged):
+    """Keys fed chunk by chunk, the chunks out of order and from threads, give
+    the first m rows of a stable sort of the whole (ties, many here, in row
+    order), merged chunk by chunk or, above MERGE_MAX, selected whole."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pcprep.filters.sparse import FirstInOrder
+
+    if not merged:
+        monkeypatch.setattr(FirstInOrder, "MERGE_MAX", 0)
+    keys = rng.integers(0, 300, 5000).astype(np.uint64)
+    starts = rng.permutation(np.arange(0, len(keys), 377))
+    for m in (1, 7, 376, 377, 1200, 5000, 6000):
+        first = FirstInOrder(m)
+        with ThreadPoolExecutor(4) as pool:
+            list(pool.map(lambda s: first.add(keys[s:s + 377], s), starts))
+        rows = first.rows()
+        assert rows.dtype == np.int64
+        np.testing.assert_array_equal(rows, np.argsort(keys, kind="stable")[:m])
+    assert len(FirstInOrder(3).rows()) == 0
