@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -677,8 +678,6 @@ class FirstInOrder:
     MERGE_MAX = 1 << 20
 
     def __init__(self, m: int):
-        import threading
-
         self.m = int(m)
         self._keys = self._rows = None
         self._parts: list = []
