@@ -670,9 +670,8 @@ class FirstInOrder:
     so far by (key, row): the stable sort's order, since it breaks ties by
     row.  So the memory is 2m keys and rows, not one key per row of the
     cloud and its partition's copy (16 B per row in the driver of a tiled
-    run).  For m above ``MERGE_MAX`` the merges
-    would sort more than they save, so the chunks are kept and selected from
-    whole."""
+    run).  For m above ``MERGE_MAX`` the merges would sort more than they
+    save, so the chunks are kept and selected from whole."""
 
     #: the largest m merged chunk by chunk
     MERGE_MAX = 1 << 20
