@@ -33,7 +33,7 @@ from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, record_step, scale_moments,
                          scale_sizes, score_rows)
-from .neighbors import average_spacing, build_tree
+from .neighbors import _SCAN, average_spacing, build_tree
 
 log = logging.getLogger("pcprep")
 
@@ -252,24 +252,31 @@ def _threshold(score: np.ndarray, cfg: _HoleConfig, rules: _HoleRules) -> float:
     return T
 
 
-def _keep(mask: np.ndarray, test: np.ndarray, what: str) -> None:
-    """``mask &= test``, logged."""
-    n_det = int(mask.sum())
-    mask &= test
+def _keep(mask: np.ndarray, test, what: str) -> None:
+    """``mask &= test(rows)`` over row chunks, in place and logged; ``test``
+    reads its column per chunk, so a memory-mapped mask and column of a tiled
+    run make no temporary of the cloud's length."""
+    n_det = n_kept = 0
+    for s0 in range(0, len(mask), _SCAN):
+        rows = slice(s0, s0 + _SCAN)
+        part = mask[rows]  # a view: the test is applied in place
+        n_det += int(part.sum())
+        part &= test(rows)
+        n_kept += int(part.sum())
     record_step(what, mask)
-    log.info("%s: %s keeps %d of %d detected points", _FUNC, what, int(mask.sum()), n_det)
+    log.info("%s: %s keeps %d of %d detected points", _FUNC, what, n_kept, n_det)
 
 
 def _pointwise(mask, feats: HoleFeatures, bdist, cfg: _HoleConfig, rules: _HoleRules):
     """The tests on each detection's own neighbourhood, in place."""
     if cfg.min_shift > 0:
-        _keep(mask, feats.shift_mean >= cfg.min_shift, "shift gate")
+        _keep(mask, lambda r: feats.shift_mean[r] >= cfg.min_shift, "shift gate")
     if bdist is not None:
-        _keep(mask, bdist <= cfg.rim_width, "border distance")
+        _keep(mask, lambda r: bdist[r] <= cfg.rim_width, "border distance")
     if rules.flatness:
-        _keep(mask, feats.variation <= cfg.max_variation, "flatness gate")
+        _keep(mask, lambda r: feats.variation[r] <= cfg.max_variation, "flatness gate")
     if rules.strip_extent:
-        _keep(mask, feats.extent <= cfg.extent_width, "strip extent")
+        _keep(mask, lambda r: feats.extent[r] <= cfg.extent_width, "strip extent")
 
 
 def _support(take, mask, h: float, min_support: int) -> None:
@@ -298,7 +305,7 @@ def _smallest_hole(take, mask, n: int, h: float, min_radius: float | None) -> No
 
 
 def _border_row(take, mask, row_near, h: float, row_angle: float) -> np.ndarray:
-    """The border row and the band along it.
+    """The border row and the band along it, written over ``mask`` (returned).
 
     Row samples are those with an empty angle > ``row_angle``.  The row
     samples within ``_ROW_REACH`` h of a detection (``row_near``) are chained
@@ -311,16 +318,17 @@ def _border_row(take, mask, row_near, h: float, row_angle: float) -> np.ndarray:
     seeds = mask[rows]
     tracked = rows[track_border(take(rows), seeds, np.ones(len(rows), dtype=bool),
                                 _TRACK_LINK * h)]
-    out = np.zeros(len(mask), dtype=bool)
-    out[tracked] = True
-    rest = det[~out[det]]
-    out[rest[near_any(take(tracked), take(rest), _ROW_BAND * h)]] = True
-    record_step("border row and band", out)
+    rest = det[~np.isin(det, tracked, assume_unique=True)]
+    band = rest[near_any(take(tracked), take(rest), _ROW_BAND * h)]
+    mask[:] = False
+    mask[tracked] = True
+    mask[band] = True
+    record_step("border row and band", mask)
     log.info("%s: border row (angular gap > %.3g deg): %d samples tracked from %d "
              "detections; %d of the %d detected points kept within %.3g h of it", _FUNC,
-             row_angle, len(tracked), int(seeds.sum()), int(out[det].sum()), len(det),
-             _ROW_BAND)
-    return out
+             row_angle, len(tracked), int(seeds.sum()), len(det) - len(rest) + len(band),
+             len(det), _ROW_BAND)
+    return mask
 
 
 def _chains(take, mask, feats: HoleFeatures, row_near, cfg: _HoleConfig,
@@ -342,12 +350,16 @@ def _chains(take, mask, feats: HoleFeatures, row_near, cfg: _HoleConfig,
 
 
 def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, row_near,
-                   cfg: _HoleConfig, rules: _HoleRules = DEFAULT_RULES):
+                   cfg: _HoleConfig, rules: _HoleRules = DEFAULT_RULES, out=None):
     """Threshold the scores, then the point-wise tests and the tests along the
-    border (``take`` and ``row_near`` as in ``_chains``).  Returns the mask and
-    the threshold."""
+    border (``take`` and ``row_near`` as in ``_chains``).  Returns the mask,
+    written into ``out`` when given (a tiled run's memory map), and the
+    threshold.  Every step works in place over row chunks of the mask and of
+    the column it reads."""
     T = _threshold(score, cfg, rules)
-    mask = score > T
+    mask = np.empty(len(score), dtype=bool) if out is None else out
+    for s0 in range(0, len(score), _SCAN):
+        mask[s0:s0 + _SCAN] = score[s0:s0 + _SCAN] > T
     record_step("threshold", mask)
     _pointwise(mask, feats, bdist, cfg, rules)
     return _chains(take, mask, feats, row_near, cfg, rules), T
@@ -357,7 +369,8 @@ def rows_by_gap(take, gap):
     """``row_near`` of a cloud whose every row's empty angle ``gap`` is known
     (a tiled run gathers it from the tiles)."""
     def row_near(det, radius, angle):
-        row = np.flatnonzero(np.asarray(gap) > angle)
+        row = np.concatenate([s0 + np.flatnonzero(np.asarray(gap[s0:s0 + _SCAN]) > angle)
+                              for s0 in range(0, len(gap), _SCAN)] + [np.zeros(0, np.int64)])
         return row[near_any(take(det), take(row), radius)]
     return row_near
 

@@ -1815,8 +1815,8 @@ def _holes(runner, src, normals, h, prm) -> TiledResult:
     take = lambda rows: np.asarray(src.xyz[rows]) - centre  # noqa: E731
     mask, T = holes.select_borders(take, score, feats, cols["border_distance"]
                                    if rules.rim_distance else None,
-                                   holes.rows_by_gap(take, cols["gap"]), cfg, rules)
-    mask = runner.on_disk("mask", mask)
+                                   holes.rows_by_gap(take, cols["gap"]), cfg, rules,
+                                   out=runner.store("mask", n, bool))
     quality = runner.map("quality", lambda v: v.astype(np.float64), mask)
     return TiledResult({"mask": mask, "score": score, "quality": quality},
                        h, {"threshold": T, "passes": 4})

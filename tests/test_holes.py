@@ -14,7 +14,7 @@ from pcprep.filters._border import (border_distance, border_gap, border_radius,
                                     strip_extent_at, track_border)
 from pcprep.filters.holes import HoleResult, hole_features
 from pcprep.filters.metrics import precision_recall_f1
-from pcprep.filters.multiscale import scale_sizes
+from pcprep.filters.multiscale import scale_sizes, trace_steps
 from pcprep.filters.neighbors import average_spacing, build_tree, centered, knn
 
 from helpers import random_rotation
@@ -357,9 +357,31 @@ def test_private_path_with_default_rules_is_the_public_function(disc, disc_resul
 
 
 # --------------------------------------------------------------- border helpers
-def test_row_samples_near_detections_in_memory_and_from_gathered_angles(holed_cube):
+def test_selection_by_row_chunks_is_the_whole_arrays(holed_cube, monkeypatch):
+    # the threshold, the point-wise tests and the row-sample scan run over row
+    # chunks (a tiled run's memory maps make no temporary of the cloud's
+    # length): chunks of 997 rows give every step's mask of one chunk
+    def steps():
+        with trace_steps() as out:
+            res = detect_hole_boundaries(holed_cube.points)
+        return res, out
+
+    whole, whole_steps = steps()
+    monkeypatch.setattr(holes, "_SCAN", 997)
+    chunked, chunked_steps = steps()
+    assert whole.mask.any() and len(whole_steps) >= 6
+    np.testing.assert_array_equal(chunked.mask, whole.mask)
+    assert [n for n, _ in chunked_steps] == [n for n, _ in whole_steps]
+    for (name, a), (_, b) in zip(whole_steps, chunked_steps):
+        np.testing.assert_array_equal(b, a, err_msg=name)
+
+
+def test_row_samples_near_detections_in_memory_and_from_gathered_angles(holed_cube,
+                                                                       monkeypatch):
     # the one-piece path computes the empty angle of the rows near the
-    # detections only; a tiled run reads every row's angle: same rows
+    # detections only; a tiled run reads every row's angle, in row chunks
+    # (of 997 rows here): same rows
+    monkeypatch.setattr(holes, "_SCAN", 997)
     s = holed_cube
     pts = centered(s.points)[0]
     tree = build_tree(pts)
