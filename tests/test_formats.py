@@ -111,6 +111,13 @@ def test_streamed_removal_writes_the_records_the_whole_cloud_path_writes(tmp_pat
         assert np.array_equal(getattr(a.header, field), getattr(b.header, field)), field
     assert a.header.point_format.id == b.header.point_format.id
     assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
+    # the kept rows are read per block by binary search, so indices that do
+    # not increase, or reach past the input, are refused, nothing written
+    for bad in (keep[::-1], np.r_[keep, keep[-1]], np.r_[keep, 5000]):
+        with pytest.raises(PointCloudError, match="increasing indices below 5000"):
+            stream.write_streamed(spec, src, tmp_path / "bad.laz",
+                                  {spec.index_field: bad}, size=1000)
+    assert not (tmp_path / "bad.laz").exists()
 
 
 def _ply_float32(path, n: int, order: str):

@@ -209,7 +209,7 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
     if to == ".xyz":
         return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
     if to == ".pcd":
-        count = n if keep is None else int(keep.sum())
+        count = n if keep is None else keep.count
         return _write_pcd(_results(spec, blocks(size), fields, keep), dst, count)
     if _ext(src) not in _STREAMED:  # a new header, over every written row's position
         return _write_las(_results(spec, blocks(size), fields, keep), dst,
@@ -237,12 +237,33 @@ def _header_over(outputs):
 
 
 def _kept(spec, fields: dict, n: int):
-    """A removal's or new layer's kept rows as a mask of the n input rows."""
+    """A removal's or new layer's kept rows (``_Kept``), None for other kinds."""
     if spec.kind not in ("remove", "new_layer"):
         return None
-    keep = np.zeros(n, dtype=bool)
-    keep[np.asarray(fields[spec.index_field])] = True
-    return keep
+    return _Kept(fields[spec.index_field], n)
+
+
+class _Kept:
+    """The kept rows of n input rows, from their increasing indices (a memory
+    map in a tiled run), read per block by binary search: no mask of the
+    input's length in memory.  The indices are checked increasing and in
+    range, chunk by chunk, since a binary search over others would pick
+    wrong rows silently."""
+
+    def __init__(self, idx, n: int):
+        self.idx, self.count = idx, len(idx)
+        last = -1
+        for s0 in range(0, self.count, CHUNK):
+            part = np.asarray(idx[s0:s0 + CHUNK])
+            if part[0] <= last or (np.diff(part) <= 0).any() or part[-1] >= n:
+                raise PointCloudError(f"the kept rows must be increasing indices "
+                                      f"below {n}")
+            last = part[-1]
+
+    def rows(self, start: int, m: int) -> np.ndarray:
+        """The kept rows among ``start:start + m``, relative to ``start``."""
+        lo, hi = np.searchsorted(self.idx, [start, start + m])
+        return np.asarray(self.idx[lo:hi], dtype=np.int64) - start
 
 
 def _block_reader(src: str):
@@ -392,7 +413,7 @@ def _write_ply(outputs, dst: str) -> int:
     return written
 
 
-def _write_kept_records(src: str, dst: str, keep: np.ndarray, size: int) -> int:
+def _write_kept_records(src: str, dst: str, keep: _Kept, size: int) -> int:
     """A removal with nothing added, LAS/LAZ to LAS/LAZ: the kept rows' point
     records copied as they are under the input's header (laspy's writer sets
     the count and bounds).  The records are the ones the general path would
@@ -405,7 +426,7 @@ def _write_kept_records(src: str, dst: str, keep: np.ndarray, size: int) -> int:
         with laspy.open(tmp, mode="w", header=reader.header, laz_backend=laz_backend(),
                         do_compress=dst.lower().endswith(".laz")) as writer:
             for pts in reader.chunk_iterator(size):
-                rows = pts[keep[start:start + len(pts)]]
+                rows = pts[keep.rows(start, len(pts))]
                 writer.write_points(rows)
                 written += len(rows)
                 start += len(pts)
@@ -420,5 +441,5 @@ def _chunk_result(spec, fields: dict, start: int, m: int, keep):
             continue
         part[name] = np.asarray(values[start:start + m])
     if keep is not None:
-        part[spec.index_field] = np.flatnonzero(keep[start:start + m])
+        part[spec.index_field] = keep.rows(start, m)
     return SimpleNamespace(**part)
