@@ -78,13 +78,16 @@ def run_on_cloud(spec, cloud: Cloud, params: dict):
     return spec.func(cloud.points, **resolved)
 
 
-def result_cloud(spec, cloud: Cloud, result) -> Cloud:
+def result_cloud(spec, cloud: Cloud, result, *, dst: str | None = None) -> Cloud:
     """The cloud a filter's result turns the input into (used by the CLI and
     by ``apply_filter``).  Every input attribute is kept (``new_layer``: on the
     kept rows).  The main per-point result goes to the attribute
     ``spec.attribute``; following MeshLab, a mask also becomes the quality
     (1/0) and a scalar the quality, the previous quality being kept as the
-    attribute ``quality_before``."""
+    attribute ``quality_before``.  A removal's or new layer's score becomes
+    the quality only for display: written to a file ``dst`` whose format
+    holds no quality (XYZ, OBJ, OFF, E57) it is left out, the kept rows
+    being the result."""
     if spec.kind == "coord":
         pts = np.asarray(getattr(result, spec.points_field), dtype=np.float64)
         nrm = getattr(result, spec.normals_field) if spec.normals_field else cloud.normals
@@ -108,8 +111,9 @@ def result_cloud(spec, cloud: Cloud, result) -> Cloud:
     if spec.kind in ("new_layer", "remove"):
         idx = np.asarray(getattr(result, spec.index_field), dtype=np.int64)
         out = cloud.subset(idx)
-        if spec.scalar_field:
-            out = out.with_(quality=np.asarray(getattr(result, spec.scalar_field), np.float64)[idx])
+        if spec.scalar_field and (dst is None or _holds_quality(dst)):
+            score = np.asarray(getattr(result, spec.scalar_field), np.float64)[idx]
+            out = _keep_quality(out).with_(quality=score)
         return out
     raise PointCloudError(f"{spec.name}: kind {spec.kind!r} produces no cloud")
 
@@ -126,6 +130,12 @@ def _with_attribute(cloud: Cloud, name: str | None, values: np.ndarray) -> Cloud
         key = f"{name}_{k}"
     attrs[key] = values
     return cloud.with_(attributes=attrs)
+
+
+def _holds_quality(dst: str) -> bool:
+    from .formats import CAN_STORE, _ext
+
+    return "quality" in CAN_STORE.get(_ext(dst), ())
 
 
 def _keep_quality(cloud: Cloud) -> Cloud:

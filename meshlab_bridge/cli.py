@@ -352,10 +352,6 @@ def _cmd_filter(args) -> int:
 
 
 #: what each kind of filter needs the output format to store
-_NEEDS = {"coord": ("normal",), "scalar": ("quality", "attributes"),
-          "selection": ("quality", "attributes"), "new_layer": (), "remove": ()}
-
-
 def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -> None:
     from . import formats
     from .apply import result_cloud, run_on_cloud
@@ -370,7 +366,7 @@ def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -
     formats.check_cloud(cloud, dst, needs=needs)
     log.info("%s: %d points from %s", spec.command, len(cloud), src)
     result = run_on_cloud(spec, cloud, params)
-    out = result_cloud(spec, cloud, result)
+    out = result_cloud(spec, cloud, result, dst=dst)
     if spec.kind == "remove":
         gone = np.setdiff1d(np.arange(len(cloud)), getattr(result, spec.index_field))
         shown = ", ".join(map(str, gone[:20])) + (", …" if len(gone) > 20 else "")
@@ -412,6 +408,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
                                     "with tiles")
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)
+    stream.check_fields(src, dst)  # the input's fields, before any work
     tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
     scratch = _scratch_folder(args.scratch, "pcprep-tiles-")
     try:

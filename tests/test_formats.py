@@ -546,6 +546,76 @@ def test_e57_scans_merge_with_their_fields(tmp_path):
         formats.write_cloud(Cloud(pts + UTM), tmp_path / "far.e57")
 
 
+def _two_scan_e57(path, translation=(0.0, 1.0, 2.0)):
+    """Two E57 scans (the second rotated, 5 apart, both at ``translation``) with
+    intensity, colours and row and column indices."""
+    import pye57
+
+    g = np.random.default_rng(7)
+    f = pye57.E57(str(path), mode="w")
+    for i, (n, rot) in enumerate(((700, [1, 0, 0, 0]), (450, [0.8, 0.0, 0.6, 0.0]))):
+        f.write_scan_raw({"cartesianX": g.normal(size=n), "cartesianY": g.normal(size=n),
+                          "cartesianZ": g.normal(size=n),
+                          "intensity": g.random(n).astype(np.float32),
+                          "colorRed": g.integers(0, 256, n).astype(np.uint8),
+                          "colorGreen": g.integers(0, 256, n).astype(np.uint8),
+                          "colorBlue": g.integers(0, 256, n).astype(np.uint8),
+                          "rowIndex": np.arange(n, dtype=np.int32),
+                          "columnIndex": np.full(n, i, dtype=np.int32)},
+                         rotation=np.array(rot),
+                         translation=np.array(translation) + [5.0 * i, 0.0, 0.0])
+    f.close()
+    return path
+
+
+@pytest.mark.parametrize("name", ["outliers", "simplify"])
+def test_streamed_e57_is_the_scan_written_whole(tmp_path, monkeypatch, name):
+    """E57 out of a tiled run: the columns are gathered on disk and pye57
+    writes the scan from memory maps of them; read back, the scan is the one
+    written from the whole result (every field, its bounds), the input is
+    never read whole, and no temporary is left."""
+    pye57 = pytest.importorskip("pye57")
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get(name)
+    src = _two_scan_e57(tmp_path / "in.e57")
+    cloud = formats.read_cloud(src)
+    params = {"ratio": 0.3} if name == "simplify" else {"method": "radius", "radius": 1.0}
+    fields = _result_fields(spec, spec.func(cloud.points, **params))
+    whole, streamed = tmp_path / "whole.e57", tmp_path / "streamed.e57"
+    out = result_cloud(spec, cloud, SimpleNamespace(**fields), dst=str(whole))
+    assert 0 < len(out) < len(cloud) and out.quality is None
+    formats.write_cloud(out, whole)
+    monkeypatch.setattr(stream, "read_cloud", lambda *a: pytest.fail("read whole"))
+    assert stream.write_streamed(spec, src, streamed, fields, size=200) == len(out)
+    a, b = pye57.E57(str(whole)), pye57.E57(str(streamed))
+    ra, rb = a.read_scan_raw(0), b.read_scan_raw(0)
+    assert sorted(ra) == sorted(rb) and "rowIndex" in rb and "colorRed" in rb
+    for k in ra:
+        assert np.array_equal(ra[k], rb[k]), k
+    ha, hb = a.get_header(0), b.get_header(0)
+    for k in ("xMinimum", "xMaximum", "yMinimum", "yMaximum", "zMinimum", "zMaximum",
+              "point_count"):
+        assert getattr(ha, k) == getattr(hb, k), k
+    a.close()
+    b.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.e57", "streamed.e57",
+                                                          "whole.e57"]
+    # far from the origin float32 would move the points: refused before
+    # anything is written, as the whole write refuses
+    far = _two_scan_e57(tmp_path / "far.e57", translation=(5e5, 5e6, 0.0))
+    far_fields = {spec.index_field: np.arange(0, 1150, 3)}
+    with pytest.raises(PointCloudError, match="float32"):
+        stream.write_streamed(spec, far, tmp_path / "far_out.e57", far_fields, size=200)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.e57", "in.e57",
+                                                          "streamed.e57", "whole.e57"]
+
+
 def test_e57_read_in_blocks_is_the_whole_read(tmp_path):
     """E57 scans are read in blocks for a tiled run (libe57's reader with small
     buffers): the blocks, put together, are the whole read (poses, fields,
@@ -591,12 +661,78 @@ def test_outputs_that_cannot_hold_the_result_are_refused_before_the_run(tmp_path
     assert sorted(os.listdir(tmp_path)) == ["in.ply"]
 
 
-def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys):
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "200", "--workers", "1"]])
+def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys, monkeypatch,
+                                                              tiled):
+    # a tiled run checks the input's first block before any work, as the
+    # one-piece run checks the cloud it read
+    from pcprep.meshlab_bridge import tiles
+
+    monkeypatch.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
     src = tmp_path / "in.ply"
     _ply_with_properties(src, text=False, n=600, faces=False)
-    assert main(["denoise", str(src), str(tmp_path / "out.xyz"), "--quiet"]) == 1
+    assert main(["denoise", str(src), str(tmp_path / "out.xyz"), "--quiet", *tiled]) == 1
     assert "intensity" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+    if tiled:  # the streamed writer refuses as well, block by block
+        from pcprep.meshlab_bridge import registry
+        from pcprep.meshlab_bridge.formats import stream
+
+        registry.load_all()
+        pts = formats.read_cloud(src).points
+        fields = {"points": pts, "normals": np.tile([0.0, 0.0, 1.0], (len(pts), 1)),
+                  "edge_mask": np.zeros(len(pts), bool)}
+        with pytest.raises(PointCloudError, match="intensity"):
+            stream.write_streamed(registry.get("denoise"), src, tmp_path / "out.xyz",
+                                  fields, size=100)
+        assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+
+
+def test_a_removal_keeps_every_field_its_format_holds(tmp_path):
+    """A removal's or new layer's score is MeshLab's quality for display: PLY
+    keeps it (the input's own quality as ``quality_before``), a format without
+    quality (XYZ, E57) gets the kept rows without it, and an E57 scan's own
+    fields (colours, intensity, row and column) go back to E57."""
+    pytest.importorskip("pye57")
+    g = np.random.default_rng(3)
+    pts = g.normal(size=(3000, 3))
+    q = g.random(3000)
+    formats.write_cloud(Cloud(pts, None, None, q, None, {}), tmp_path / "q.ply")
+    assert main(["simplify", str(tmp_path / "q.ply"), str(tmp_path / "s.ply"),
+                 "--ratio", "0.5", "--quiet"]) == 0
+    out = formats.read_cloud(tmp_path / "s.ply")
+    kept = _rows_of(pts, out.points)
+    assert len(out.points) == 1500
+    assert np.array_equal(out.attributes["quality_before"], q[kept])
+    assert not np.array_equal(out.quality, q[kept])
+    np.savetxt(tmp_path / "p.xyz", pts)
+    assert main(["simplify", str(tmp_path / "p.xyz"), str(tmp_path / "s.xyz"),
+                 "--ratio", "0.5", "--quiet"]) == 0
+    assert np.array_equal(formats.read_cloud(tmp_path / "s.xyz").points,
+                          formats.read_cloud(tmp_path / "s.ply").points)
+    src = _two_scan_e57(tmp_path / "in.e57")
+    for name, extra in (("outliers", ["--method", "radius", "--radius", "1.0"]),
+                        ("simplify", ["--ratio", "0.5"])):
+        dst = tmp_path / f"{name}.e57"
+        assert main([name, str(src), str(dst), "--quiet", *extra]) == 0
+        a, b = formats.read_cloud(src), formats.read_cloud(dst)
+        rows = _rows_of(a.points, b.points)
+        assert 0 < len(b.points) < len(a.points)
+        assert sorted(b.attributes) == sorted(a.attributes)
+        for k in a.attributes:  # one scan written, in the global frame
+            want = 0 * a.attributes[k][rows] if k == "scan_index" else a.attributes[k][rows]
+            assert np.array_equal(b.attributes[k], want), k
+        assert np.array_equal(b.colors, a.colors[rows])
+
+
+def _rows_of(pts: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """The row of ``pts`` each row of ``sub`` is (to E57's float32), every one
+    found."""
+    from scipy.spatial import cKDTree
+
+    dist, rows = cKDTree(pts).query(sub)
+    assert dist.max() < 1e-6 * np.ptp(pts)
+    return rows
 
 
 def test_unwritable_or_missing_destinations_and_folder_inputs(tmp_path, capsys, monkeypatch):

@@ -172,27 +172,35 @@ def check_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:
     colours, quality or named attributes) or its coordinates' precision; run it
     on the input, before a filter starts, and again when writing."""
     path = os.fspath(path)
-    ext = _ext(path)
     check_destination(path, needs=needs)
+    check_kept(cloud, path)
+    if _ext(path) == ".e57":
+        from .e57 import check_precision
+
+        check_precision(cloud, path)
+
+
+def check_kept(cloud: Cloud, path: str) -> None:
+    """Refuse a format that cannot store ``cloud``'s normals, colours, quality
+    or named attributes (``check_cloud`` without the folder and precision
+    tests: a streamed writer runs it on every block)."""
+    ext = _ext(path)
     have = {"normal": cloud.normals is not None, "color": cloud.colors is not None,
             "quality": cloud.quality is not None, "attributes": bool(cloud.attributes)}
-    if ext == ".e57":
-        from .e57 import _WRITABLE
+    if ext == ".e57":  # its own fields, and the colours it was read with, go back
+        from .e57 import _RGB, _WRITABLE
 
-        have["attributes"] = any(k not in (*_WRITABLE, "scan_index") for k in cloud.attributes)
-        have["quality"] = have["quality"] and "intensity" in cloud.attributes
+        have["attributes"] = any(k not in (*_WRITABLE, *_RGB, "scan_index")
+                                 for k in cloud.attributes)
     lost = [k for k, v in have.items() if v and k not in CAN_STORE[ext]]
     if lost:
         what = ", ".join(sorted(cloud.attributes)) if lost == ["attributes"] else " and ".join(
-            f"{k}s" if k != "attributes" else f"attributes ({', '.join(sorted(cloud.attributes))})"
+            {"normal": "normals", "color": "colours", "quality": "quality values",
+             "attributes": f"attributes ({', '.join(sorted(cloud.attributes))})"}[k]
             for k in lost)
         raise PointCloudError(
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
-    if ext == ".e57":
-        from .e57 import check_precision
-
-        check_precision(cloud, path)
 
 
 def write_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:

@@ -19,6 +19,7 @@ output of a filter whose result needs a named attribute.
 from __future__ import annotations
 
 import os
+import tempfile
 
 import numpy as np
 
@@ -153,9 +154,17 @@ def read(path: str) -> Cloud:
 
 
 def check_precision(cloud: Cloud, path: str) -> None:
-    pts = cloud.points
-    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
-    extent = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    _refuse_float32(*_precision(cloud.points), path)
+
+
+def _precision(pts: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The largest move of a point rounded to float32, and the bounds."""
+    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max(initial=0.0))
+    return err, pts.min(axis=0, initial=np.inf), pts.max(axis=0, initial=-np.inf)
+
+
+def _refuse_float32(err: float, lo: np.ndarray, hi: np.ndarray, path: str) -> None:
+    extent = float(np.linalg.norm(hi - lo)) if np.isfinite(lo).all() else 0.0
     if err > 1e-6 * max(extent, 1e-300):
         raise PointCloudError(
             f"cannot write {path!r}: the E57 writer stores float32 coordinates, which would "
@@ -166,19 +175,78 @@ def check_precision(cloud: Cloud, path: str) -> None:
 _WRITABLE = ("intensity", "rowIndex", "columnIndex", "cartesianInvalidState")
 
 
-def write(cloud: Cloud, path: str) -> None:
-    import pye57
-
-    check_precision(cloud, path)
+def _columns(cloud: Cloud, path: str) -> dict:
+    """The scan's fields pye57 writes, as contiguous columns."""
     data = {k: np.ascontiguousarray(cloud.points[:, j]) for j, k in enumerate(_XYZ)}
-    if cloud.colors is not None:
-        for j, k in enumerate(_RGB):
-            data[k] = np.rint(cloud.colors[:, j] * 255).astype(np.uint8)
+    if all(k in cloud.attributes for k in _RGB):  # as read from an E57 file
+        rgb = [np.asarray(cloud.attributes[k]) for k in _RGB]
+    elif cloud.colors is not None:
+        rgb = [np.rint(cloud.colors[:, j] * 255) for j in range(3)]
+    else:
+        rgb = []
+    for k, v in zip(_RGB, rgb):
+        if len(v) and (v.min() < 0 or v.max() > 255):
+            raise PointCloudError(f"cannot write {path!r}: pye57 writes 8-bit colours and "
+                                  f"{k} reaches {v.max():.6g}; use .ply or .las")
+        data[k] = v.astype(np.uint8)
     for name in _WRITABLE:
         if name in cloud.attributes:
             data[name] = np.ascontiguousarray(cloud.attributes[name])
+    return data
+
+
+def _write_scan(data: dict, path: str) -> None:
+    import pye57
+
     e57 = pye57.E57(path, mode="w")
     try:
         e57.write_scan_raw(data)
     finally:
         e57.close()
+
+
+def write(cloud: Cloud, path: str) -> None:
+    check_precision(cloud, path)
+    _write_scan(_columns(cloud, path), path)
+
+
+def write_blocks(clouds, path: str) -> int:
+    """One scan from the blocks of a streamed result (``Cloud`` objects with the
+    same fields), never whole in memory: each column is appended to a raw file
+    in a temporary folder beside ``path``, then pye57 writes the scan from
+    memory maps of them (it copies rows into its buffers chunk by chunk, and
+    its minima and maxima read the maps; with a ``cartesianInvalidState``
+    column its bounding box copies the valid rows' coordinates, 25 B per
+    point).  The format and float32 tests run over the blocks before anything
+    is written, and the file appears whole or not at all.  The result is the
+    file ``write`` makes of the whole cloud.  Returns the row count."""
+    from . import _temporary
+
+    folder = os.path.dirname(os.path.abspath(path))
+    with tempfile.TemporaryDirectory(prefix=".pcprep-e57-", dir=folder) as tmp:
+        files, dtypes, n = {}, {}, 0
+        err, lo, hi = 0.0, np.full(3, np.inf), np.full(3, -np.inf)
+        try:
+            for cloud in clouds:
+                cols = _columns(cloud, path)
+                if not files:
+                    files = {k: open(os.path.join(tmp, k), "wb") for k in cols}
+                    dtypes = {k: v.dtype for k, v in cols.items()}
+                if cols.keys() != files.keys():
+                    raise PointCloudError(f"cannot write {path!r}: the blocks of the "
+                                          "result do not carry the same fields")
+                for k, v in cols.items():
+                    files[k].write(v.astype(dtypes[k], copy=False).tobytes())
+                e, a, b = _precision(cloud.points)
+                err, lo, hi = max(err, e), np.minimum(lo, a), np.maximum(hi, b)
+                n += len(cloud.points)
+        finally:
+            for f in files.values():
+                f.close()
+        _refuse_float32(err, lo, hi, path)
+        if n == 0:
+            raise PointCloudError(f"cannot write {path!r}: the result holds no points")
+        with _temporary(path) as out:
+            _write_scan({k: np.memmap(os.path.join(tmp, k), dtypes[k], "r", shape=(n,))
+                         for k in files}, out)
+    return n

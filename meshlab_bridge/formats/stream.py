@@ -15,11 +15,11 @@ from LAS/LAZ under the input's header, new results as extra dimensions, a
 removal copying the kept rows' records as they are; from another format under
 the header ``las.write`` gives the whole result, its scale and offset from a
 first pass over the written rows' positions), to binary PLY (plyfile's header,
-then the rows; the same bytes ``ply.write`` gives the whole result), to XYZ
-and to binary PCD.  E57 out (pye57 writes a scan from whole arrays) and the
-inputs read whole go through ``read_cloud``/``write_cloud`` with the cloud in
-memory.  Every write is atomic; a reader refuses what reading the whole file
-refuses.
+then the rows; the same bytes ``ply.write`` gives the whole result), to XYZ,
+to binary PCD and to E57 (the columns gathered on disk, then pye57 writes the
+scan from memory maps of them).  The inputs read whole go through
+``read_cloud``/``write_cloud`` with the cloud in memory.  Every write is
+atomic; a reader refuses what reading the whole file refuses.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 
 from pcprep.filters._validation import PointCloudError
 
-from . import _ext, _temporary, read_cloud
+from . import _ext, _temporary, check_kept, read_cloud
 from .las import laz_backend
 
 #: rows per streamed chunk
@@ -193,30 +193,45 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
-    if blocks is None or to not in (".ply", ".xyz", ".pcd") + _STREAMED:
+    if blocks is None or to not in (".ply", ".xyz", ".pcd", ".e57") + _STREAMED:
         # no chunked reader or writer for the pair: the cloud in memory, written whole
         from . import write_cloud
 
         cloud = read_cloud(src)
         keep = _kept(spec, fields, len(cloud))
-        out = next(_results(spec, iter([(0, cloud)]), fields, keep))
+        out = next(_results(spec, iter([(0, cloud)]), fields, keep, dst))
         write_cloud(out, dst)
         return len(out)
     n = point_count(src) if n is None else n
     keep = _kept(spec, fields, n)
     if to == ".ply":
-        return _write_ply(lambda: _results(spec, blocks(size), fields, keep), dst)
+        return _write_ply(lambda: _results(spec, blocks(size), fields, keep, dst), dst)
     if to == ".xyz":
-        return _write_xyz(_results(spec, blocks(size), fields, keep), dst)
+        return _write_xyz(_results(spec, blocks(size), fields, keep, dst), dst)
+    if to == ".e57":
+        from . import e57
+
+        return e57.write_blocks(_results(spec, blocks(size), fields, keep, dst), dst)
     if to == ".pcd":
         count = n if keep is None else keep.count
-        return _write_pcd(_results(spec, blocks(size), fields, keep), dst, count)
+        return _write_pcd(_results(spec, blocks(size), fields, keep, dst), dst, count)
     if _ext(src) not in _STREAMED:  # a new header, over every written row's position
-        return _write_las(_results(spec, blocks(size), fields, keep), dst,
-                          _header_over(_results(spec, blocks(size), fields, keep)))
+        return _write_las(_results(spec, blocks(size), fields, keep, dst), dst,
+                          _header_over(_results(spec, blocks(size), fields, keep, dst)))
     if keep is not None and not spec.scalar_field:
         return _write_kept_records(src, dst, keep, size)
-    return _write_las(_results(spec, blocks(size), fields, keep), dst)
+    return _write_las(_results(spec, blocks(size), fields, keep, dst), dst)
+
+
+def check_fields(src, dst) -> None:
+    """Refuse, before a tiled run, a destination whose format cannot store the
+    input's normals, colours, quality or attributes (``check_kept`` on its
+    first block, as the one-piece run checks the whole cloud once read).  A
+    format read whole is checked when the result is written."""
+    blocks = _block_reader(os.fspath(src))
+    for _, cloud in ([] if blocks is None else blocks(1024)):
+        check_kept(cloud, os.fspath(dst))
+        return
 
 
 def _header_over(outputs):
@@ -313,14 +328,17 @@ def _block_reader(src: str):
     return ply_blocks
 
 
-def _results(spec, blocks, fields: dict, keep):
+def _results(spec, blocks, fields: dict, keep, dst: str):
     """The output cloud of each block: the filter's result on its rows (with
-    MeshLab's quality ramp as colours for a scalar)."""
+    MeshLab's quality ramp as colours for a scalar), refused where ``dst``'s
+    format would lose one of its fields (``check_kept``)."""
     from ..apply import result_cloud
     from ..convert import quality_ramp
 
     for start, block in blocks:
-        out = result_cloud(spec, block, _chunk_result(spec, fields, start, len(block), keep))
+        out = result_cloud(spec, block, _chunk_result(spec, fields, start, len(block), keep),
+                           dst=dst)
+        check_kept(out, dst)
         if spec.kind == "scalar" and out.quality is not None:
             out = out.with_(colors=quality_ramp(out.quality))
         yield out
