@@ -11,9 +11,11 @@ coordinates: they are read as NaN rows, which the reader refuses or drops like
 any non-finite row.  pye57 writes coordinates as float32, so writing is refused
 when that would move a point by more than 1e-6 of the cloud's extent (scans in
 projected coordinates); use PLY or LAS there.  E57 has no place for named
-per-point results (``sharp``, ``saliency``), so only positions, colours and the
-standard fields of ``_WRITABLE`` are written, and the CLI refuses E57 as the
-output of a filter whose result needs a named attribute.
+per-point results (``sharp``, ``saliency``) or a quality, so only positions,
+colours and the standard fields of ``_WRITABLE`` are written, as one scan in
+the global frame (``scan_index`` reads back as 0), and the CLI refuses E57 as
+the output of a filter whose result needs a named attribute.  ``write`` takes
+a cloud in memory, ``write_blocks`` a streamed result's blocks.
 """
 
 from __future__ import annotations
