@@ -23,7 +23,8 @@ from . import _kernels, sparse
 from ._params import Param, preset_param, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
-from .neighbors import CHUNK, build_tree, knn, leaf_chunks, spacing_from_rows, weighted_pca
+from .neighbors import (CHUNK, build_tree, knn, leaf_chunks, pairwise_sum,
+                        spacing_from_rows, weighted_pca)
 
 log = logging.getLogger("pcprep")
 
@@ -133,15 +134,14 @@ def local_geometry(P: np.ndarray, normals, dist: np.ndarray, idx: np.ndarray, h:
 def feature_scales(sigma: np.ndarray, P: np.ndarray, feature_scale: str) -> tuple:
     """The cloud-wide divisors of the σ and position columns: their RMS values
     ("balanced": each block weighs alike in the code) or 1 and the bounding-box
-    diagonal (the thesis' unscaled features).  ``P`` may be a memory map: it
-    is read in chunks."""
+    diagonal (the thesis' unscaled features).  ``sigma`` and ``P`` may be
+    memory maps: they are read in chunks, the means being NumPy's to the bit
+    (``neighbors.pairwise_sum``) with no temporary of the cloud's length."""
     if feature_scale == "balanced":
-        rms_s = float(np.sqrt(np.mean(sigma ** 2)))
-        sq = np.empty(len(P))  # noqa: NPY-empty -- every chunk written below
-        for s0 in range(0, len(P), CHUNK):
-            block = P[s0:s0 + CHUNK]
-            sq[s0:s0 + CHUNK] = np.einsum("ij,ij->i", block, block)
-        return (rms_s if rms_s > 0 else 1.0), float(np.sqrt(np.mean(sq)))
+        n = len(P)
+        rms_s = float(np.sqrt(pairwise_sum(sigma, np.square) / n))
+        rms_p = float(np.sqrt(pairwise_sum(P, lambda b: np.einsum("ij,ij->i", b, b)) / n))
+        return (rms_s if rms_s > 0 else 1.0), rms_p
     lo = np.min([P[s0:s0 + CHUNK].min(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
     hi = np.max([P[s0:s0 + CHUNK].max(axis=0) for s0 in range(0, len(P), CHUNK)], axis=0)
     return 1.0, float(np.linalg.norm(hi - lo))

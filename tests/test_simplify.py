@@ -223,3 +223,19 @@ def test_delta_search_hits_count(name, ratio, monkeypatch):
     assert len(res.keep_idx) == target
     assert abs(res.n_greedy - target) <= max(1, int(0.01 * target))
     assert len(calls) <= 6
+
+
+@pytest.mark.parametrize("scan", [1 << 20, 1000])
+def test_feature_scales_are_numpys_means_read_in_chunks(monkeypatch, scan):
+    # the divisors of (6.x)'s columns are RMS values over every row; read in
+    # chunks (here of 1000 rows) they are NumPy's whole-array means to the bit
+    from pcprep.filters import neighbors
+
+    monkeypatch.setattr(neighbors, "_SCAN", scan)
+    g = np.random.default_rng(4)
+    P = g.normal(size=(12_345, 3)) * [3.0, 1.0, 0.2] + 1e3
+    sigma = g.random(12_345) / 3
+    s_sig, s_pos = S.feature_scales(sigma, P, "balanced")
+    assert s_sig == float(np.sqrt(np.mean(sigma ** 2)))
+    assert s_pos == float(np.sqrt(np.mean(np.einsum("ij,ij->i", P, P))))
+    assert S.feature_scales(np.zeros(5), P[:5], "balanced")[0] == 1.0
