@@ -313,8 +313,10 @@ def standardise(F: np.ndarray, med: np.ndarray | None = None,
     if med is None or scale is None:
         med, scale = column_scale(F)
     Z = F if overwrite else np.empty(F.shape)  # noqa: NPY-empty -- every chunk written
-    for s0 in range(0, len(F), CHUNK):
-        Z[s0:s0 + CHUNK] = np.maximum((F[s0:s0 + CHUNK] - med) / scale, 0.0)
+    for s0 in range(0, len(F), CHUNK):  # one temporary per chunk, the same bits
+        z = F[s0:s0 + CHUNK] - med
+        z /= scale
+        Z[s0:s0 + CHUNK] = np.maximum(z, 0.0, out=z)
     return Z
 
 
