@@ -351,7 +351,6 @@ def _cmd_filter(args) -> int:
     return 1 if failed else 0
 
 
-#: what each kind of filter needs the output format to store
 def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -> None:
     from . import formats
     from .apply import result_cloud, run_on_cloud
