@@ -488,6 +488,7 @@ def removal(run, score, nnz, res, h: float, n: int, target, delta, inv) -> Simpl
     greedy pass (one piece, or by tiles)."""
     d0 = delta if target is None else _delta_guess(target, n, inv)
     log.info("simplify_sdbs: saliency done; first delta %.4g h", d0)
+    exact = None  # the count the greedy flags are made to keep
     if target is not None and target >= n:
         keep = np.ones(n, dtype=bool)
         d_use, n_greedy = 0.0, n
@@ -497,9 +498,8 @@ def removal(run, score, nnz, res, h: float, n: int, target, delta, inv) -> Simpl
         n_greedy = int(keep.sum())
     else:
         d_use, keep = _search_delta(run, target, d0)
-        n_greedy = int(keep.sum())
-        keep = _make_exact(keep, score, target)
-    keep_idx = np.flatnonzero(keep).astype(np.int64)
+        n_greedy, exact = int(keep.sum()), target
+    keep_idx = _kept_rows(keep, score, exact)
     log.info("simplify_sdbs: kept %d of %d points (delta = %.4g h)", len(keep_idx), n,
              d_use)
     return SimplifyResult(keep_idx=keep_idx, score=score, delta=float(d_use), h=h,
@@ -614,15 +614,26 @@ def _search_delta(run, target: int, d: float, max_eval: int = 30):
     return best[0], best[1]
 
 
-def _make_exact(keep: np.ndarray, score: np.ndarray, target: int) -> np.ndarray:
-    keep = keep.copy()
-    c = int(keep.sum())
-    if c > target:
-        kept = np.flatnonzero(keep)
-        order = np.lexsort((kept, score[kept]))  # least salient first
-        keep[kept[order[: c - target]]] = False
-    elif c < target:
-        rem = np.flatnonzero(~keep)
-        order = np.lexsort((rem, -score[rem]))  # most salient first
-        keep[rem[order[: target - c]]] = True
-    return keep
+def _kept_rows(keep, score: np.ndarray, target) -> np.ndarray:
+    """The rows of the greedy keep flags, made ``target`` many when given: the
+    least salient kept rows dropped, or the most salient removed rows added,
+    ties by row.  The rows to flip are picked chunk by chunk
+    (``sparse.FirstInOrder`` over the eligible rows' scores, +inf for the
+    others), so the flags and scores of a tiled run, memory maps, are read
+    and never copied whole; only the kept rows' list is built."""
+    n = len(keep)
+    rows = np.concatenate([s0 + np.flatnonzero(keep[s0:s0 + CHUNK])
+                           for s0 in range(0, n, CHUNK)] + [np.zeros(0, np.int64)])
+    c = len(rows)
+    if target is None or c == target:
+        return rows.astype(np.int64)
+    drop = c > target
+    first = sparse.FirstInOrder(abs(c - target))
+    for s0 in range(0, n, CHUNK):
+        k = np.asarray(keep[s0:s0 + CHUNK], dtype=bool)
+        v = np.asarray(score[s0:s0 + CHUNK], dtype=np.float64)
+        first.add(np.where(k, v, np.inf) if drop else np.where(k, np.inf, -v), s0)
+    flip = np.sort(first.rows())
+    if drop:
+        return rows[~np.isin(rows, flip, assume_unique=True)].astype(np.int64)
+    return np.sort(np.concatenate([rows, flip])).astype(np.int64)

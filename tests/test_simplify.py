@@ -239,3 +239,24 @@ def test_feature_scales_are_numpys_means_read_in_chunks(monkeypatch, scan):
     assert s_sig == float(np.sqrt(np.mean(sigma ** 2)))
     assert s_pos == float(np.sqrt(np.mean(np.einsum("ij,ij->i", P, P))))
     assert S.feature_scales(np.zeros(5), P[:5], "balanced")[0] == 1.0
+
+
+@pytest.mark.parametrize("target", [0, 1, 137, 480, 500, 523, 999, 1000])
+def test_exact_count_picked_chunk_by_chunk(monkeypatch, target):
+    # the count made exact drops the least salient kept rows or adds the most
+    # salient removed ones, ties by row, as a whole-array lexsort does; the
+    # flips are picked in chunks (of 64 rows here) without copying the flags
+    monkeypatch.setattr(S, "CHUNK", 64)
+    g = np.random.default_rng(target)
+    keep = g.random(1000) < 0.5
+    score = np.round(g.random(1000), 1)  # many ties
+    ref = keep.copy()
+    kept, rem = np.flatnonzero(keep), np.flatnonzero(~keep)
+    if len(kept) > target:
+        ref[kept[np.lexsort((kept, score[kept]))[:len(kept) - target]]] = False
+    else:
+        ref[rem[np.lexsort((rem, -score[rem]))[:target - len(kept)]]] = True
+    got = S._kept_rows(keep, score, target)
+    assert len(got) == target and got.dtype == np.int64
+    np.testing.assert_array_equal(got, np.flatnonzero(ref))
+    np.testing.assert_array_equal(S._kept_rows(keep, score, None), kept)
