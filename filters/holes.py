@@ -33,7 +33,7 @@ from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, record_step, scale_moments,
                          scale_sizes, score_rows)
-from .neighbors import _SCAN, average_spacing, build_tree
+from .neighbors import _SCAN, average_spacing, build_tree, nonzero_rows
 
 log = logging.getLogger("pcprep")
 
@@ -369,8 +369,7 @@ def rows_by_gap(take, gap):
     """``row_near`` of a cloud whose every row's empty angle ``gap`` is known
     (a tiled run gathers it from the tiles)."""
     def row_near(det, radius, angle):
-        row = np.concatenate([s0 + np.flatnonzero(np.asarray(gap[s0:s0 + _SCAN]) > angle)
-                              for s0 in range(0, len(gap), _SCAN)] + [np.zeros(0, np.int64)])
+        row = nonzero_rows(gap, lambda g: g > angle)
         return row[near_any(take(det), take(row), radius)]
     return row_near
 

@@ -194,6 +194,15 @@ def quantile(x: np.ndarray, q: float) -> float:
     return float(b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g)
 
 
+def nonzero_rows(x: np.ndarray, test=None) -> np.ndarray:
+    """``np.flatnonzero(x)`` (of ``test(x)``, an element-wise test, when given)
+    of a 1-D array, read in chunks of ``_SCAN`` rows: a memory map of a tiled
+    run's every row makes no temporary of its length."""
+    return np.concatenate([s + np.flatnonzero(x[s:s + _SCAN] if test is None
+                                              else test(x[s:s + _SCAN]))
+                           for s in range(0, len(x), _SCAN)] + [np.zeros(0, np.int64)])
+
+
 #: the longest block NumPy's pairwise sum adds without cutting it in two
 _PAIRWISE_BLOCK = 128
 

@@ -23,8 +23,8 @@ from . import _kernels, sparse
 from ._params import Param, preset_param, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
-from .neighbors import (CHUNK, build_tree, knn, leaf_chunks, pairwise_sum,
-                        spacing_from_rows, weighted_pca)
+from .neighbors import (CHUNK, build_tree, knn, leaf_chunks, nonzero_rows,
+                        pairwise_sum, spacing_from_rows, weighted_pca)
 
 log = logging.getLogger("pcprep")
 
@@ -622,8 +622,7 @@ def _kept_rows(keep, score: np.ndarray, target) -> np.ndarray:
     others), so the flags and scores of a tiled run, memory maps, are read
     and never copied whole; only the kept rows' list is built."""
     n = len(keep)
-    rows = np.concatenate([s0 + np.flatnonzero(keep[s0:s0 + CHUNK])
-                           for s0 in range(0, n, CHUNK)] + [np.zeros(0, np.int64)])
+    rows = nonzero_rows(keep)
     c = len(rows)
     if target is None or c == target:
         return rows.astype(np.int64)

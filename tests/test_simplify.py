@@ -246,7 +246,10 @@ def test_exact_count_picked_chunk_by_chunk(monkeypatch, target):
     # the count made exact drops the least salient kept rows or adds the most
     # salient removed ones, ties by row, as a whole-array lexsort does; the
     # flips are picked in chunks (of 64 rows here) without copying the flags
+    from pcprep.filters import neighbors
+
     monkeypatch.setattr(S, "CHUNK", 64)
+    monkeypatch.setattr(neighbors, "_SCAN", 64)
     g = np.random.default_rng(target)
     keep = g.random(1000) < 0.5
     score = np.round(g.random(1000), 1)  # many ties
