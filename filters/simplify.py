@@ -564,8 +564,10 @@ def target_count(ratio, count, n: int, func: str) -> int | None:
 
 
 def _delta_guess(target: int, n: int, inv: np.ndarray) -> float:
-    """First δ: the kept balls tile the surface (area ∝ n h², a ball ∝ (δ h inv)²)."""
-    return float(np.sqrt(n / (target * np.mean(inv ** 2))))
+    """First δ: the kept balls tile the surface (area ∝ n h², a ball ∝ (δ h inv)²).
+    The mean of inv² is NumPy's read in chunks (``pairwise_sum``): ``inv`` of a
+    tiled run is a memory map of every row."""
+    return float(np.sqrt(n / (target * (pairwise_sum(inv, np.square) / len(inv)))))
 
 
 #: first guess of the exponent e in count ∝ δ^-e (measured ≈ 1.5 on the

@@ -239,6 +239,9 @@ def test_feature_scales_are_numpys_means_read_in_chunks(monkeypatch, scan):
     assert s_sig == float(np.sqrt(np.mean(sigma ** 2)))
     assert s_pos == float(np.sqrt(np.mean(np.einsum("ij,ij->i", P, P))))
     assert S.feature_scales(np.zeros(5), P[:5], "balanced")[0] == 1.0
+    inv = 1.0 / np.maximum(sigma, 0.05)
+    want = float(np.sqrt(12_345 / (1234 * np.mean(inv ** 2))))
+    assert S._delta_guess(1234, 12_345, inv) == want
 
 
 @pytest.mark.parametrize("target", [0, 1, 137, 480, 500, 523, 999, 1000])
