@@ -13,6 +13,7 @@ measured to do, is in docs/decisions/features.md.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import _kernels
 from .multiscale import chain_labels, neighbour_offsets, sym3_eig
@@ -274,7 +275,7 @@ def near_any(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarr
 
     Parameters
     ----------
-    points : (m, 3) float
+    points : (m, 3) float, or a cKDTree built over them
     queries : (q, 3) float
     radius : float
         In the points' units.
@@ -287,8 +288,9 @@ def near_any(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarr
     >>> near_any(np.zeros((1, 3)), np.array([[0.5, 0, 0], [2.0, 0, 0]]), 1.0).tolist()
     [True, False]
     """
-    if len(points) == 0 or len(queries) == 0:
+    tree = points if isinstance(points, cKDTree) else None
+    if (points.n if tree is not None else len(points)) == 0 or len(queries) == 0:
         return np.zeros(len(queries), dtype=bool)
-    d, _ = build_tree(points).query(queries, k=1,
-                                    distance_upper_bound=np.nextafter(radius, np.inf))
+    d, _ = (tree or build_tree(points)).query(
+        queries, k=1, distance_upper_bound=np.nextafter(radius, np.inf))
     return d <= radius

@@ -5,6 +5,7 @@ Compiled kernels (numba): the per-signal solvers of the sparse core (Lasso by
 LARS and orthogonal matching pursuit, one signal at a time), the per-problem
 Lasso of ``lasso_batched``, the k-NN graph orientation of
 ``neighbors.orient_normals_mst`` (Kruskal with a signed union-find), the
+chaining of nearby points (``multiscale.chain_labels``, a union-find), the
 per-neighbourhood geometry of the saliency filter, the multi-scale moments
 of the feature and hole detectors (``multiscale.scale_moments``), the hole
 detector's strip extent (``_border.strip_extent_at``) and empty angle
@@ -729,6 +730,27 @@ if HAVE_NUMBA:
             rep[i] = r
             rel[i] = p
         return rep, rel
+
+    @_jit(inline="always")
+    def _root(parent, i):
+        """Root of i in a union-find forest, halving the path on the way."""
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    @_jit()
+    def join_min(parent, a, b):
+        """Join a[t] and b[t] in the union-find forest ``parent`` for every t,
+        the larger root going under the smaller, so that every tree's root is
+        its smallest member (``multiscale.chain_labels``)."""
+        for t in range(a.shape[0]):
+            x = _root(parent, a[t])
+            y = _root(parent, b[t])
+            if x < y:
+                parent[y] = x
+            elif y < x:
+                parent[x] = y
 
     @_jit()
     def cell_ids(xyz, lo, sides, shape, out):

@@ -33,7 +33,7 @@ from ._params import Param, preset_param, resolve_params, validate_params
 from .multiscale import (SCORE_PARAMS, CodeLengths, Detection, ScoreConfig, fit_score_model,
                          otsu_threshold, prepare_cloud, record_step, scale_moments,
                          scale_sizes, score_rows)
-from .neighbors import _SCAN, average_spacing, build_tree, nonzero_rows
+from .neighbors import _SCAN, average_spacing, build_tree
 
 log = logging.getLogger("pcprep")
 
@@ -367,10 +367,17 @@ def select_borders(take, score: np.ndarray, feats: HoleFeatures, bdist, row_near
 
 def rows_by_gap(take, gap):
     """``row_near`` of a cloud whose every row's empty angle ``gap`` is known
-    (a tiled run gathers it from the tiles)."""
+    (a tiled run gathers it from the tiles).  The rows are read ``_SCAN`` at
+    a time against one tree over the detections, so the row samples of the
+    whole cloud and their positions are never held at once."""
     def row_near(det, radius, angle):
-        row = nonzero_rows(gap, lambda g: g > angle)
-        return row[near_any(take(det), take(row), radius)]
+        near = [np.zeros(0, np.int64)]
+        if len(det):
+            tree = build_tree(take(det))
+            for s0 in range(0, len(gap), _SCAN):
+                row = s0 + np.flatnonzero(np.asarray(gap[s0:s0 + _SCAN]) > angle)
+                near.append(row[near_any(tree, take(row), radius)])
+        return np.concatenate(near)
     return row_near
 
 

@@ -576,18 +576,73 @@ def _distinct_counts(chunks, most: int):
     return centers, counts
 
 
-def chain_labels(points: np.ndarray, link: float) -> np.ndarray:
+#: query points per chunk of ``chain_labels``' pair search (at least; see there)
+CHAIN_CHUNK = 1 << 15
+#: the most chunks ``chain_labels`` cuts a cloud into (the NumPy merge rereads
+#: every point's chain once per chunk)
+_CHAIN_PARTS = 64
+
+
+def chain_labels(points: np.ndarray, link: float, *, chunk: int = CHAIN_CHUNK) -> np.ndarray:
     """Connected-component label of each point, points closer than ``link``
-    being joined (``points`` (m, 3), not empty).
+    being joined (``points`` (m, 3)).  Chains are numbered by their smallest
+    row, as ``scipy.sparse.csgraph.connected_components`` numbers them.
+
+    The pairs within ``link`` are found for ``chunk`` points at a time (a
+    tree over the chunk against the tree over all, ``sparse_distance_matrix``)
+    and joined in a union-find forest whose roots are each chain's smallest
+    row (``_kernels.join_min``; ``_join_chunk`` without the kernels).  So
+    only one chunk's pairs are held, never every pair of the cloud: a
+    border's points have tens of others within the link, and a tiled run
+    chains every detection of the cloud on its driver.  The chunks follow the
+    tree's leaf order, so each is a compact piece of space whose search
+    prunes most of the tree (in input order a shuffled cloud took 8x as
+    long).  The chunk grows so that there are at most ``_CHAIN_PARTS``.
 
     >>> chain_labels(np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]]), 1.5).tolist()
     [0, 0, 1]
     """
     m = len(points)
-    pairs = build_tree(points).query_pairs(link, output_type="ndarray")
-    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
-                          shape=(m, m))
-    return connected_components(graph, directed=False)[1]
+    chunk = max(int(chunk), -(-m // _CHAIN_PARTS), 1)
+    tree = build_tree(points)
+    root = np.arange(m)
+    for s in range(0, m, chunk):
+        rows = tree.indices[s:s + chunk]
+        pairs = build_tree(points[rows]).sparse_distance_matrix(
+            tree, link, output_type="ndarray")
+        i, j = rows[pairs["i"]], pairs["j"]
+        once = j > i  # each pair is found from both ends
+        if _kernels.ENABLED:
+            _kernels.join_min(root, i[once], j[once])
+        else:
+            root = _join_chunk(root, i[once], j[once])
+    while True:  # every point straight under its root (pointer jumping)
+        up = root[root]
+        if np.array_equal(up, root):
+            break
+        root = up
+    first = root == np.arange(m)
+    return (np.cumsum(first) - 1)[root]
+
+
+def _join_chunk(first: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """``chain_labels``' union-find step in NumPy: ``first`` holds every
+    point's chain by its smallest row; the chains the pairs (i, j) join
+    take the smallest of theirs (connected components of the graph over the
+    chains the pairs touch).  Returns the new ``first``."""
+    a, b = first[i], first[j]
+    cut = a != b
+    if not cut.any():
+        return first
+    ends, at = np.unique(np.r_[a[cut], b[cut]], return_inverse=True)  # ascending
+    k = int(cut.sum())
+    graph = sp.coo_matrix((np.ones(k, np.int8), (at[:k], at[k:])),
+                          shape=(len(ends), len(ends)))
+    joined = connected_components(graph, directed=False)[1]
+    # ``ends`` ascends, so each joined chain's first entry is its smallest row
+    remap = np.arange(len(first))
+    remap[ends] = ends[np.unique(joined, return_index=True)[1]][joined]
+    return remap[first]
 
 
 @dataclass(frozen=True)

@@ -380,10 +380,9 @@ def test_row_samples_near_detections_in_memory_and_from_gathered_angles(holed_cu
                                                                        monkeypatch):
     # the one-piece path computes the empty angle of the rows near the
     # detections only; a tiled run reads every row's angle, in row chunks
-    # (of 997 rows here): same rows
-    from pcprep.filters import neighbors
-
-    monkeypatch.setattr(neighbors, "_SCAN", 997)
+    # (of 997 rows here), each chunk against one tree over the detections:
+    # same rows
+    monkeypatch.setattr(holes, "_SCAN", 997)
     s = holed_cube
     pts = centered(s.points)[0]
     tree = build_tree(pts)

@@ -9,7 +9,7 @@ from pcprep.filters import multiscale
 from pcprep.filters.multiscale import (ScoreConfig, chain_labels, code_lengths,
                                        otsu_threshold, prepare_cloud, scale_moments,
                                        scale_sizes, standardise, sym3_eig)
-from pcprep.filters.neighbors import centered, knn, weighted_pca
+from pcprep.filters.neighbors import build_tree, centered, knn, weighted_pca
 
 
 def _config(**kw):
@@ -98,6 +98,37 @@ def test_chain_labels_join_points_closer_than_the_link():
     x = np.r_[np.arange(5.0), 10 + np.arange(3.0)]
     lab = chain_labels(np.c_[x, np.zeros(8), np.zeros(8)], 1.5)
     assert len(set(lab[:5])) == 1 and len(set(lab[5:])) == 1 and lab[0] != lab[5]
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 100, 1 << 20])
+@pytest.mark.parametrize("compiled", [True, False])
+def test_chain_labels_equal_one_pair_graph_in_any_chunking(rng, monkeypatch, chunk, compiled):
+    # the chunked union-find (compiled, and its NumPy reference) gives scipy's
+    # components of the whole pair graph, to the label: on scattered points,
+    # on a lattice whose spacing is the link itself (pairs exactly at the link
+    # join), and with repeated points
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    from pcprep.filters import _kernels
+
+    if compiled and not _kernels.HAVE_NUMBA:
+        pytest.skip("numba not importable")
+    monkeypatch.setattr(_kernels, "ENABLED", compiled)
+    monkeypatch.setattr(multiscale, "_CHAIN_PARTS", 10 ** 9)
+    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(9.0), [0.0]), -1).reshape(-1, 3)
+    lattice = 0.1 * g[rng.permutation(len(g))]
+    lattice = lattice[np.abs(lattice[:, 0] - 0.6) > 0.05]  # two chains
+    scattered = rng.uniform(0, 10, (1500, 3))
+    for pts, link in ((scattered, 0.9), (lattice, 0.1),
+                      (np.r_[scattered[:300], scattered[:50]], 0.7)):
+        pairs = build_tree(pts).query_pairs(link, output_type="ndarray")
+        graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                              shape=(len(pts), len(pts)))
+        n_chains, want = connected_components(graph, directed=False)
+        assert 1 < n_chains < len(pts)
+        np.testing.assert_array_equal(chain_labels(pts, link, chunk=chunk), want)
+    assert chain_labels(np.zeros((0, 3)), 1.0).shape == (0,)
 
 
 def test_prepare_cloud_validates_and_centres(rng):
