@@ -490,7 +490,7 @@ def _markdown(out: dict) -> str:
              "anonymous part (the rest are pages of the scratch memory maps and the "
              "files, which the kernel writes back and drops as memory runs short); "
              "both include the interpreter, the imports and one streamed chunk of "
-             "the write (2²⁰ rows with every attribute).", "",
+             "the write (2¹⁸ rows with every attribute).", "",
              _repeats_text(out),
              "| filter | points | workers | tiles | wall s | s / 10⁶ pts | serial s | "
              "peak RSS per worker MB | driver peak MB (anonymous) | scratch disk B / pt | "

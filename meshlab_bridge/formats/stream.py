@@ -36,6 +36,11 @@ from .las import laz_backend
 
 #: rows per streamed chunk
 CHUNK = 1 << 20
+#: input rows per block of a streamed write: each block is a whole ``Cloud``
+#: with every attribute and its output record, about 170 B per row.  Writing a
+#: holes result over 10^6 LAZ points took the same time in blocks of 2^18 and
+#: 2^20 rows, at 153 against 250 MB anonymous memory.
+WRITE_ROWS = 1 << 18
 _STREAMED = (".las", ".laz")
 
 
@@ -184,7 +189,7 @@ def normals_into(path, n: int, out: str):
     return arr
 
 
-def write_streamed(spec, src, dst, fields: dict, *, size: int = CHUNK,
+def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
                    n: int | None = None) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal); ``n``
