@@ -661,16 +661,18 @@ def test_outputs_that_cannot_hold_the_result_are_refused_before_the_run(tmp_path
     assert sorted(os.listdir(tmp_path)) == ["in.ply"]
 
 
+@pytest.mark.parametrize("text", [False, True])
 @pytest.mark.parametrize("tiled", [[], ["--tiles", "200", "--workers", "1"]])
 def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys, monkeypatch,
-                                                              tiled):
-    # a tiled run checks the input's first block before any work, as the
-    # one-piece run checks the cloud it read
+                                                              tiled, text):
+    # a tiled run checks the input's first block before any work (the whole
+    # cloud of an ASCII PLY, a format read whole), as the one-piece run
+    # checks the cloud it read
     from pcprep.meshlab_bridge import tiles
 
     monkeypatch.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
     src = tmp_path / "in.ply"
-    _ply_with_properties(src, text=False, n=600, faces=False)
+    _ply_with_properties(src, text=text, n=600, faces=False)
     assert main(["denoise", str(src), str(tmp_path / "out.xyz"), "--quiet", *tiled]) == 1
     assert "intensity" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path)) == ["in.ply"]
@@ -686,6 +688,19 @@ def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys, 
             stream.write_streamed(registry.get("denoise"), src, tmp_path / "out.xyz",
                                   fields, size=100)
         assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+
+
+def test_a_tiled_run_refuses_an_input_it_could_not_write_from(tmp_path, capsys, monkeypatch):
+    # positions alone in a .npy are not a cloud read_cloud reads: the tiled
+    # command line refuses it before any work, not at the write after the run
+    from pcprep.meshlab_bridge import tiles
+
+    monkeypatch.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
+    np.save(tmp_path / "in.npy", np.random.default_rng(0).normal(size=(500, 3)))
+    assert main(["denoise", str(tmp_path / "in.npy"), str(tmp_path / "out.laz"), "--quiet",
+                 "--tiles", "200", "--workers", "1"]) == 1
+    assert "unknown format .npy" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["in.npy"]
 
 
 def test_a_removal_keeps_every_field_its_format_holds(tmp_path):

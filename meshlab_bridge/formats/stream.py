@@ -230,12 +230,18 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
 
 def check_fields(src, dst) -> None:
     """Refuse, before a tiled run, a destination whose format cannot store the
-    input's normals, colours, quality or attributes (``check_kept`` on its
-    first block, as the one-piece run checks the whole cloud once read).  A
-    format read whole is checked when the result is written."""
-    blocks = _block_reader(os.fspath(src))
-    for _, cloud in ([] if blocks is None else blocks(1024)):
-        check_kept(cloud, os.fspath(dst))
+    input's normals, colours, quality or attributes, as the one-piece run
+    refuses it once the cloud is read (``check_kept``): on the first block of
+    a format read in blocks, on the whole cloud of a format read whole (which
+    the run reads whole as well).  An input ``read_cloud`` cannot read is
+    refused here too, not at the write after the run."""
+    src, dst = os.fspath(src), os.fspath(dst)
+    blocks = _block_reader(src)
+    if blocks is None:
+        check_kept(read_cloud(src), dst)
+        return
+    for _, cloud in blocks(1024):
+        check_kept(cloud, dst)
         return
 
 
