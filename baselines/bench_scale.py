@@ -39,7 +39,7 @@ PARAMS = {"simplify": {"ratio": 0.1}}
 #: peak memory per worker and time per million points against N (flat when the
 #: tiles keep their size); the scan is the real gargoyle point set of the shared
 #: models, laid out in copies (run only when that folder is present)
-EXTRA = (("terrain", 5_000_000, ("outliers", "features", "simplify")),
+EXTRA = (("terrain", 5_000_000, FILTERS),
          ("terrain", 20_000_000, FILTERS),
          ("scan", 1_000_000, FILTERS))
 QUICK_EXTRA = (("terrain", 300_000, ("outliers",)), ("scan", 100_000, ("outliers",)))
