@@ -288,9 +288,8 @@ def near_any(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarr
     >>> near_any(np.zeros((1, 3)), np.array([[0.5, 0, 0], [2.0, 0, 0]]), 1.0).tolist()
     [True, False]
     """
-    tree = points if isinstance(points, cKDTree) else None
-    if (points.n if tree is not None else len(points)) == 0 or len(queries) == 0:
+    if (points.n if isinstance(points, cKDTree) else len(points)) == 0 or len(queries) == 0:
         return np.zeros(len(queries), dtype=bool)
-    d, _ = (tree or build_tree(points)).query(
-        queries, k=1, distance_upper_bound=np.nextafter(radius, np.inf))
+    tree = points if isinstance(points, cKDTree) else build_tree(points)
+    d, _ = tree.query(queries, k=1, distance_upper_bound=np.nextafter(radius, np.inf))
     return d <= radius

@@ -401,8 +401,10 @@ def test_row_samples_near_detections_in_memory_and_from_gathered_angles(holed_cu
 def test_near_any_is_a_brute_force_radius_test(rng):
     p, q = rng.normal(size=(50, 3)), rng.normal(size=(400, 3))
     d = np.linalg.norm(q[:, None] - p[None], axis=2).min(axis=1)
+    tree = build_tree(p)
     for r in (0.1, 0.3, 1.0):
         np.testing.assert_array_equal(near_any(p, q, r), d <= r)
+        np.testing.assert_array_equal(near_any(tree, q, r), d <= r)  # a tree given
     # the radius itself counts as near; nothing is near an empty set
     assert near_any(np.zeros((1, 3)), np.array([[0.0, 0.0, 0.5]]), 0.5).all()
     assert not near_any(np.zeros((0, 3)), q, 10.0).any()
