@@ -5,7 +5,7 @@ Streamed reading and writing for tiled runs of clouds larger than memory.
 
 ``position_chunks(path)`` yields ``(start, xyz)`` blocks without loading the
 file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
-plyfile, binary PCD and ``.npy`` memory-mapped, XYZ parsed block by block, E57
+plyfile, binary PCD memory-mapped, XYZ parsed block by block, E57
 through libe57's reader with block-sized buffers; the other formats are read
 whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
@@ -55,8 +55,6 @@ def point_count(path) -> int:
                 return int(f.header.point_count)
         except (laspy.errors.LaspyException, ValueError) as exc:
             raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
-    if ext == ".npy":
-        return len(_npy(path))
     if ext == ".xyz":
         from . import text
 
@@ -76,18 +74,6 @@ def point_count(path) -> int:
         if ply is not None:
             return int(ply["vertex"].count)
     return len(read_cloud(path))
-
-
-def _npy(path: str) -> np.ndarray:
-    """The (n, 3) real array of a ``.npy`` file, memory-mapped."""
-    try:
-        arr = np.load(path, mmap_mode="r")
-    except (ValueError, OSError, EOFError) as exc:  # cut short, pickled objects, …
-        raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
-    if arr.ndim != 2 or arr.shape[1] != 3 or arr.dtype.kind not in "fiu":
-        raise PointCloudError(f"cannot read {path!r}: expected an (n, 3) array of real "
-                              f"numbers, got shape {arr.shape} of {arr.dtype}")
-    return arr
 
 
 def _ply_mmap(path):
@@ -125,11 +111,6 @@ def position_chunks(path, size: int = CHUNK):
         if start != declared:  # laspy stops quietly where a LAS file ends
             raise PointCloudError(f"cannot read {path!r}: the header declares {declared} "
                                   f"points, the file holds {start}")
-        return
-    if ext == ".npy":
-        arr = _npy(path)
-        for s in range(0, len(arr), size):
-            yield s, np.asarray(arr[s:s + size], dtype=np.float64)
         return
     if ext == ".xyz":
         from . import text
