@@ -133,6 +133,19 @@ def test_bad_input():
         sparse.ksvd(np.ones((5, 3)), 4, seed=-1)
 
 
+def test_non_finite_signals_are_found_in_any_row_chunk(monkeypatch):
+    # the check reads the signals in row chunks (7 rows here): a NaN or Inf in
+    # the first, a middle or the last, partial, chunk is refused
+    monkeypatch.setattr(sparse, "CHUNK", 7)
+    for row, value in ((0, np.nan), (23, np.inf), (49, -np.inf)):
+        X = np.ones((50, 3))
+        X[row, 2] = value
+        with pytest.raises(InvalidParameterError, match="ksvd: X contains NaN or Inf"):
+            sparse.ksvd(X, 4)
+    assert sparse.ksvd(np.random.default_rng(0).normal(size=(50, 3)), 4).dictionary.shape \
+        == (4, 3)
+
+
 def test_lasso_lars_kkt_on_many_structured_signals(solver_path):
     # clustered signals (like point features) exercise atom screening, drops
     # and re-entries; every code must satisfy the Lasso optimality conditions
