@@ -554,9 +554,9 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
 
     The filter has two cloud-wide values: F̄_g, the mean descriptor behind the
     distinctness d (5.4), and the maxima that normalise S_T and the point
-    saliency.  ``stage="mean"`` returns the sums over the core rows of F̄⁴ (the
-    first four descriptor components) and the oriented normals of every row (their
-    signs are the tile's: MST within the tile); ``stage="code"``, given
+    saliency.  ``stage="mean"`` returns every row's F̄⁴ (the first four
+    descriptor components; the caller averages the core rows') and oriented
+    normal (their signs are the tile's: MST within the tile); ``stage="code"``, given
     ``fbar_mean`` (F̄_g) and ``reference = (row, normal)`` (the normal of one core
     row in the signs F̄_g was summed in, which turns F̄_g into the tile's own
     signs; None: they are the tile's), returns per row the raw
@@ -590,8 +590,7 @@ def saliency_tile(points, lo, hi, core, *, centre, h: float, n_total: int, stage
     F4 = np.column_stack([nrm, gauss * r * r])
     Fbar4 = hood.mean(F4)
     if stage == "mean":
-        return {"exact": True, "sum": Fbar4[core].sum(axis=0), "normals": nrm,
-                "sure": sure}
+        return {"exact": True, "fbar4": Fbar4, "normals": nrm, "sure": sure}
     fbar_mean = np.array(fbar_mean, dtype=np.float64)
     if reference is not None and nrm[reference[0]] @ np.asarray(reference[1]) < 0:
         fbar_mean[:3] *= -1.0

@@ -1527,36 +1527,44 @@ def _align_signs(runner, src, nrm, align) -> int:
 
 
 def _saliency(runner, src, normals, h, prm) -> TiledResult:
-    """Tiled saliency: a pass of sums gives F̄_g (the normal block after the
-    tiles' orientations are made to agree); the coding pass gives the raw
-    residuals and accumulations; the cloud-wide maxima normalise them."""
+    """Tiled saliency: a first pass stores every row's F̄⁴ and, once the
+    tiles' orientations are made to agree (their normal blocks flipped with
+    them), F̄_g is their mean in row order, summed as the one-piece run sums
+    it, so that it is the same to the bit (a sum of the tiles' sums differed
+    in the last bits, and one Lasso problem of near-duplicate atoms in 12,000
+    took another code from that); the coding pass gives the raw residuals and
+    accumulations; the cloud-wide maxima normalise them."""
     from pcprep.filters.saliency import saliency_tile
 
     from .specs.saliency import tile_hops
 
     n = src.n
     nrm = runner.store("normals", (n, 3))
+    fb4 = runner.store("fbar4", (n, 4))
     given = None if normals is None else runner.stored("given_normals", normals)
-    sums, align = {}, []
+    signs, align = {}, []
 
     def collect_mean(cell, res):
-        sums[cell], sample = res["reduced"]
+        signs[cell], sample = res["reduced"]
         align.append(sample)
 
     base = dict(centre=src.centre, h=h, n_total=n, **prm)
     hops = tile_hops(prm)
     halo = (hops + 1) * max(prm["radius"], HOP_H) * h
     runner.run("saliency mean", saliency_tile, halo, dict(base, stage="mean", hops=hops),
-               [(nrm, "normals", "ext")], reads={"normals": (given, "rows")},
-               reduce=_mean_reduce, collect=collect_mean)
+               [(nrm, "normals", "ext"), (fb4, "fbar4", "ext")],
+               reads={"normals": (given, "rows")}, reduce=_mean_reduce, collect=collect_mean)
     if given is None:  # given normals keep their signs, as in one piece
         _align_signs(runner, src, nrm, align)
-    tot = np.zeros(4)
-    for cell in sorted(sums):  # the tiles' sums in the aligned signs, in cell
-        row, first, part = sums[cell]  # order: the same sum in every run
-        sg = float(np.sign(nrm[row] @ first))
-        tot += np.r_[sg * part[:3], part[3]]
-    fbar_g = tot / n
+        for cell, (row, first) in signs.items():  # F̄⁴'s normal block in the aligned signs
+            if nrm[row] @ first < 0:
+                rows = runner.index.core_rows(cell)
+                fb4[rows, :3] = -fb4[rows, :3]
+    total = None  # np.mean(axis=0) adds the rows one after another: so do the chunks
+    for s0 in range(0, n, CHUNK):
+        part = np.asarray(fb4[s0:s0 + CHUNK])
+        total = np.add.reduce(part if total is None else np.vstack([total[None], part]), axis=0)
+    fbar_g = total / n
     resid = runner.store("residual", n)
     sparsity = runner.store("sparsity", n, np.int64)
     acc = runner.store("accumulated", n)
@@ -1585,12 +1593,11 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
 
 
 def _mean_reduce(cell, rows, core, res):
-    """Saliency's first pass, per tile: its sum of the normal block with the
-    tile's first core row and that row's normal (the sign the sum was taken
-    in), and the overlap sample of ``_halo_sample``."""
+    """Saliency's first pass, per tile: the tile's first core row and that
+    row's normal (the signs its F̄⁴ rows were taken in), and the overlap
+    sample of ``_halo_sample``."""
     i0 = int(np.flatnonzero(core)[0])
-    return ((int(rows[i0]), res["normals"][i0].copy(), res["sum"]),
-            _halo_sample(cell, rows, core, res))
+    return ((int(rows[i0]), res["normals"][i0].copy()), _halo_sample(cell, rows, core, res))
 
 
 # ---------------------------------------------------------------------------
@@ -1965,8 +1972,8 @@ def scratch_need(command: str, prm: dict, n: int, *, positions: bool = True,
         row += spacing + 8 * (prm["method"] == "statistical") + 8 + 1 + 8
     elif command == "denoise":  # points, normals, edge score and mask; tile signs
         row += spacing + 24 + 24 + 8 + 1 + given + signs
-    elif command == "saliency":  # normals; residual, sparsity, accumulation, two saliencies
-        row += spacing + 24 + given + signs + 5 * 8
+    elif command == "saliency":  # normals, F̄⁴; residual, sparsity, accumulation, saliencies
+        row += spacing + 24 + 32 + given + signs + 5 * 8
     elif command == "features":  # four columns per scale; normals; ridge, score, masks
         from pcprep.filters import sharp
         from pcprep.filters.multiscale import scale_sizes
