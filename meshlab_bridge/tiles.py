@@ -1530,10 +1530,10 @@ def _saliency(runner, src, normals, h, prm) -> TiledResult:
     """Tiled saliency: a first pass stores every row's F̄⁴ and, once the
     tiles' orientations are made to agree (their normal blocks flipped with
     them), F̄_g is their mean in row order, summed as the one-piece run sums
-    it, so that it is the same to the bit (a sum of the tiles' sums differed
-    in the last bits, and one Lasso problem of near-duplicate atoms in 12,000
-    took another code from that); the coding pass gives the raw residuals and
-    accumulations; the cloud-wide maxima normalise them."""
+    it, so that it is the same to the bit (a Lasso problem of near-duplicate
+    atoms can take another code from a difference in the last bits); the
+    coding pass gives the raw residuals and accumulations; the cloud-wide
+    maxima normalise them."""
     from pcprep.filters.saliency import saliency_tile
 
     from .specs.saliency import tile_hops
