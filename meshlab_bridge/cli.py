@@ -145,8 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="point count, spacing h, bounding box, attributes")
     info.add_argument("input")
     info.add_argument("--quiet", action="store_true", help="no progress messages")
-    _add_scale_options(info, "the file is read in blocks, never whole (LAS, LAZ, binary "
-                             "PLY and PCD, XYZ, E57)")
+    _add_scale_options(info, "the file is read in blocks, never whole (LAS, LAZ, PLY of "
+                             "vertices alone, PCD, XYZ, E57)")
     sub.add_parser("filters", help="list the filters and their parameters")
     run = sub.add_parser("run", help="run a MeshLab filter script (.mlx) that may mix "
                                      "MeshLab's and pcprep's filters")

@@ -122,11 +122,14 @@ def test_streamed_removal_writes_the_records_the_whole_cloud_path_writes(tmp_pat
 
 def _ply_float32(path, n: int, order: str):
     """A binary PLY of a noisy unit sphere: float32 positions, 8-bit colours,
-    an intensity and a confidence, in byte order ``order``."""
+    an intensity and a confidence, in byte order ``order``; ``"ascii"`` for
+    an ASCII PLY of these and a signed 32-bit column (a row of float32 and
+    int32 values is written in float64 by plyfile)."""
     g = np.random.default_rng(n)
+    extra = [("return", "i4")] if order == "ascii" else []
     v = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"),
                            ("green", "u1"), ("blue", "u1"), ("intensity", "u2"),
-                           ("confidence", "f4")])
+                           ("confidence", "f4")] + extra)
     p = g.normal(size=(n, 3))
     p /= np.linalg.norm(p, axis=1)[:, None]
     p += g.normal(scale=0.003, size=(n, 3))
@@ -136,7 +139,10 @@ def _ply_float32(path, n: int, order: str):
         v[c] = g.integers(0, 256, n)
     v["intensity"] = g.integers(0, 65535, n)
     v["confidence"] = g.random(n)
-    PlyData([PlyElement.describe(v, "vertex")], byte_order=order,
+    if extra:
+        v["return"] = g.integers(-2**31, 2**31 - 1, n)
+    PlyData([PlyElement.describe(v, "vertex")], text=order == "ascii",
+            byte_order="<" if order == "ascii" else order,
             comments=["scanner 7"]).write(str(path))
     return path
 
@@ -149,13 +155,13 @@ def _result_fields(spec, result) -> dict:
 
 
 @pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "features", "simplify"])
-@pytest.mark.parametrize("order", ["<", ">", "las"])
+@pytest.mark.parametrize("order", ["<", ">", "ascii", "las"])
 def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
-    """A tiled run writes binary PLY block by block; the file must be the one
+    """A tiled run writes PLY block by block; the file must be the one
     written from the whole result in memory, byte for byte: every input
     property in its place and type (float32 positions become float64 where a
     filter moves them, in every block), results appended, the input's byte
-    order and comments (or a LAS input's dimensions)."""
+    order or ASCII encoding and comments (or a LAS input's dimensions)."""
     from types import SimpleNamespace
 
     from pcprep.meshlab_bridge import registry
@@ -179,6 +185,7 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
         out = out.with_(colors=quality_ramp(out.quality))
     whole, streamed = tmp_path / "whole.ply", tmp_path / "streamed.ply"
     formats.write_cloud(out, whole)
+    assert stream._block_reader(src) is not None  # not the whole-cloud path
     assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
     assert streamed.read_bytes() == whole.read_bytes()
     assert b"end_header" in whole.read_bytes()[:2000]
@@ -245,14 +252,133 @@ def test_streamed_ply_column_type_is_settled_over_every_block(tmp_path):
     assert np.array_equal(back["x"], moved[:, 0])
 
 
-@pytest.mark.parametrize("damage", ["ply cut", "ply cut inside a row", "ply too long",
-                                    "las of text"])
-def test_streamed_reading_refuses_damaged_files(tmp_path, damage):
-    """The tiled path's reader (positions memory-mapped) refuses what reading
-    the whole file refuses: rows missing or left over, records that are not
-    points."""
+def test_ascii_ply_is_read_in_blocks_as_it_is_read_whole(tmp_path):
+    """An ASCII PLY of vertices alone is parsed block by block (NumPy's
+    loadtxt, each column in its type): every block's cloud holds the rows,
+    attributes, types and header facts of the whole read, at any block size;
+    a PLY with faces is still read whole."""
     from pcprep.meshlab_bridge.formats import stream
 
+    src = _ply_float32(tmp_path / "in.ply", 2500, "ascii")
+    whole = formats.read_cloud(src)
+    for size in (1, 333, 2500, 4096):
+        blocks = list(stream._block_reader(str(src))(size))
+        assert [s for s, _ in blocks] == list(range(0, 2500, size))
+        assert np.array_equal(np.concatenate([b.points for _, b in blocks]), whole.points)
+        assert np.array_equal(np.concatenate([b.colors for _, b in blocks]), whole.colors)
+        for name, col in whole.attributes.items():
+            got = np.concatenate([b.attributes[name] for _, b in blocks])
+            assert got.dtype == col.dtype and np.array_equal(got, col), name
+        assert all(b.meta == whole.meta for _, b in blocks)
+        pos = list(stream.position_chunks(src, size))
+        assert np.array_equal(np.concatenate([p for _, p in pos]), whole.points)
+    assert stream.point_count(src) == 2500
+    mesh = tmp_path / "mesh.ply"
+    formats.write_cloud(whole.with_(faces=np.array([[0, 1, 2]])), mesh)
+    assert b"format ascii" in mesh.read_bytes()[:100]
+    assert stream._block_reader(str(mesh)) is None
+
+
+def test_ascii_ply_reads_and_writes_as_plyfile_does(tmp_path):
+    """ASCII PLY of vertices alone is parsed and written by NumPy, not by
+    plyfile's row loop: the values read are plyfile's, bit for bit, and the
+    file written is the one plyfile writes, byte for byte, for every property
+    type, extreme and non-finite values, and rows whose values share
+    float32, float64 or an integer type."""
+    from numpy.lib.recfunctions import repack_fields
+    from plyfile import PlyData, PlyElement
+
+    from pcprep.meshlab_bridge.formats import ply
+
+    g = np.random.default_rng(11)
+    n = 3000
+    types = ["f4", "f8", "i1", "u1", "i2", "u2", "i4", "u4"]
+    v = np.zeros(n, dtype=[("x", "f8"), ("y", "f4"), ("z", "f4")]
+                 + [(f"c_{t}", t) for t in types])
+    v["x"] = g.normal(size=n) * 10.0 ** g.integers(-30, 30, n)
+    v["y"] = g.normal(size=n).astype("f4")
+    v["z"] = g.normal(size=n).astype("f4") * np.float32(1e30)
+    for t in types:
+        info = np.finfo(t) if t[0] == "f" else np.iinfo(t)
+        col = g.integers(info.min, info.max, n, endpoint=True) if t[0] != "f" \
+            else g.normal(size=n) * 10.0 ** g.integers(-30, 30, n)
+        v[f"c_{t}"] = col
+        v[f"c_{t}"][:2] = [info.min, info.max]
+    v["c_f8"][2:5] = [np.nan, np.inf, -np.inf]
+    v["c_f4"][2:5] = [np.nan, np.inf, 5e-45]
+    src = tmp_path / "in.ply"
+    PlyData([PlyElement.describe(v, "vertex")], text=True, comments=["c"],
+            obj_info=["o"]).write(str(src))
+    ours = formats.read_cloud(src)
+    theirs = PlyData.read(str(src))["vertex"].data
+    assert np.array_equal(ours.points, np.column_stack([theirs[c].astype("f8") for c in "xyz"]))
+    for t in types:
+        got, want = ours.attributes[f"c_{t}"], theirs[f"c_{t}"]
+        assert got.dtype == want.dtype
+        assert np.array_equal(got.view(f"u{got.itemsize}"), want.view(f"u{want.itemsize}"))
+    # written: a removal (new row count), the same types
+    kept = ours.subset(np.arange(0, n, 3), keep_faces=False)
+    formats.write_cloud(kept, tmp_path / "ours.ply")
+    cols = ply.vertex_columns(kept)
+    PlyData([PlyElement.describe(ply.vertex_rows(cols, {k: c.dtype for k, c in cols.items()}),
+                                 "vertex")], text=True, comments=["c"], obj_info=["o"]
+            ).write(str(tmp_path / "plyfile.ply"))
+    assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "plyfile.ply").read_bytes()
+    for group in (["y", "z", "c_u1"], ["x", "c_i1"], ["c_i2", "c_u2", "c_i4"]):
+        rows = repack_fields(v[["x", "y", "z"] + [c for c in group if c not in "xyz"]])
+        PlyData([PlyElement.describe(rows, "vertex")], text=True).write(
+            str(tmp_path / "g.ply"))
+        formats.write_cloud(formats.read_cloud(tmp_path / "g.ply"), tmp_path / "g2.ply")
+        assert (tmp_path / "g2.ply").read_bytes() == (tmp_path / "g.ply").read_bytes()
+
+
+def _damaged_ascii(path, damage: str):
+    """An ASCII PLY of 1000 rows damaged as ``damage`` says, in a late row."""
+    _ply_float32(path, 1000, "ascii")
+    head, rows = path.read_bytes().split(b"end_header\n")
+    lines = rows.splitlines(keepends=True)
+    if damage == "ascii cut":
+        lines = lines[:-3]
+    elif damage == "ascii too long":
+        lines = lines + lines[:2]
+    elif damage == "ascii blank line":
+        lines.insert(900, b"\n")
+    elif damage == "ascii short row":
+        lines[901] = b" ".join(lines[901].split()[:-1]) + b"\n"
+    elif damage == "ascii long row":
+        lines[901] = lines[901].rstrip() + b" 7\n"
+    elif damage == "ascii not a number":
+        tok = lines[901].split()
+        lines[901] = b" ".join(tok[:1] + [b"abc"] + tok[2:]) + b"\n"
+    path.write_bytes(head + b"end_header\n" + b"".join(lines))
+    return path
+
+
+@pytest.mark.parametrize("damage", ["ply cut", "ply cut inside a row", "ply too long",
+                                    "las of text", "ascii cut", "ascii too long",
+                                    "ascii blank line", "ascii short row",
+                                    "ascii long row", "ascii not a number"])
+def test_streamed_reading_refuses_damaged_files(tmp_path, damage):
+    """The tiled path's reader (positions memory-mapped, or ASCII rows parsed
+    in blocks) refuses what reading the whole file refuses: rows missing or
+    left over, rows that are not the header's, records that are not points."""
+    from pcprep.meshlab_bridge.formats import stream
+
+    if damage.startswith("ascii"):
+        path = _damaged_ascii(tmp_path / "a.ply", damage)
+        with pytest.raises(PointCloudError, match="cannot read"):
+            formats.read_cloud(path)
+        said = {"ascii cut": "row 997 .*is missing", "ascii too long": "declares 1000 rows .*holds 1002",
+                "ascii blank line": "row 900 .*is blank", "ascii short row": "row 901 .*8 values",
+                "ascii long row": "row 901 .*10 values",
+                "ascii not a number": "row 901 .*'abc' is not a value of property 'y'"}[damage]
+        with pytest.raises(PointCloudError, match=said):
+            for _ in stream.position_chunks(path, size=100):
+                pass
+        with pytest.raises(PointCloudError, match=said):
+            for _ in stream._block_reader(str(path))(300):
+                pass
+        return
     if damage.startswith("ply"):
         path = _ply_float32(tmp_path / "a.ply", 1000, "<")
         data = path.read_bytes()
@@ -473,10 +599,27 @@ def test_pcd_ascii_and_binary_as_pcl_writes_them(tmp_path):
         formats.read_cloud(tmp_path / "c.pcd")
 
 
-def test_binary_pcd_streams_as_its_whole_read(tmp_path):
-    """A binary PCD is memory-mapped for a tiled run: positions and blocks are
-    the whole read's, a PLY written from its blocks is the whole write, and a
-    file cut short is refused with its counts."""
+def _ascii_pcd(binary, path):
+    """The ASCII PCD of a binary PCD's records (every value as repr of its
+    float64, which reads back to the same value), with a blank line."""
+    from pcprep.meshlab_bridge.formats import pcd
+
+    rec, _ = pcd.binary_rows(str(binary))
+    head = binary.read_bytes().split(b"DATA binary\n")[0]
+    cols = [np.asarray(rec[name], np.float64).reshape(len(rec), -1) for name in rec.dtype.names]
+    table = np.hstack(cols)
+    lines = [" ".join(repr(float(v)) for v in row) for row in table]
+    lines.insert(len(lines) // 2, "")
+    path.write_bytes(head + b"DATA ascii\n" + "\n".join(lines).encode() + b"\n")
+    return path
+
+
+@pytest.mark.parametrize("data", ["binary", "ascii"])
+def test_pcd_streams_as_its_whole_read(tmp_path, data):
+    """A binary PCD is memory-mapped for a tiled run, an ASCII PCD parsed
+    block by block: positions and blocks are the whole read's, a PLY written
+    from its blocks is the whole write, and a file cut short is refused with
+    its counts."""
     from types import SimpleNamespace
 
     from pcprep.meshlab_bridge import registry
@@ -490,7 +633,15 @@ def test_binary_pcd_streams_as_its_whole_read(tmp_path):
                               {"intensity": g.random(n).astype(np.float32)}), tmp_path / "a.pcd")
     path = tmp_path / "a.pcd"
     assert b"DATA binary" in path.read_bytes()[:400]
+    if data == "ascii":
+        binary = formats.read_cloud(path)
+        path = _ascii_pcd(path, tmp_path / "t.pcd")
+        whole = formats.read_cloud(path)
+        assert np.array_equal(whole.points, binary.points)
+        assert np.array_equal(whole.colors, binary.colors)
+        assert np.array_equal(whole.attributes["intensity"], binary.attributes["intensity"])
     whole = formats.read_cloud(path)
+    assert stream._block_reader(str(path)) is not None
     assert stream.point_count(path) == n
     assert np.array_equal(np.concatenate([b for _, b in stream.position_chunks(path, 700)]),
                           whole.points)
@@ -519,6 +670,22 @@ def test_binary_pcd_streams_as_its_whole_read(tmp_path):
         assert stream.write_streamed(spec, path, tmp_path / "s.pcd", fields,
                                      size=700) == len(out)
         assert (tmp_path / "s.pcd").read_bytes() == (tmp_path / "whole.pcd").read_bytes()
+    if data == "ascii":
+        lines = path.read_bytes().splitlines(keepends=True)
+        path.write_bytes(b"".join(lines[:-2]))
+        with pytest.raises(PointCloudError, match=f"declares {n} points, the file holds "
+                                                  f"{n - 2} rows"):
+            for _ in stream.position_chunks(path, 700):
+                pass
+        path.write_bytes(b"".join(lines + lines[-3:]))
+        with pytest.raises(PointCloudError, match=f"holds {n + 3} rows"):
+            formats.read_cloud(path)
+        bad = lines[:-5] + [lines[-5].replace(b" ", b" x", 1)] + lines[-4:]
+        path.write_bytes(b"".join(bad))
+        with pytest.raises(PointCloudError, match=f"rows 2100–{n - 1} .*not numeric"):
+            for _ in stream._block_reader(str(path))(700):
+                pass
+        return
     path.write_bytes(path.read_bytes()[:-50])
     with pytest.raises(PointCloudError, match=f"declares {n} points"):
         stream.point_count(path)

@@ -484,6 +484,39 @@ def test_cli_tiled_features_ply(tmp_path):
     assert np.array_equal(a.points, b.points)
 
 
+def test_cli_tiled_ascii_ply_is_streamed_and_equals_one_piece(tmp_path, monkeypatch):
+    # an ASCII PLY (float64 positions, a colour and a scanner's column) through
+    # the tiled command line: read and written in blocks, never whole, and the
+    # same ASCII file as the one-piece run's
+    import plyfile
+
+    from pcprep.meshlab_bridge.cli import main
+    from pcprep.meshlab_bridge.formats import stream
+
+    pts = CLOUD[:6000]
+    rows = np.empty(len(pts), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u1"),
+                                     ("green", "u1"), ("blue", "u1"), ("gps_time", "f8")])
+    for c, v in zip("xyz", pts.T):
+        rows[c] = v
+    for c in ("red", "green", "blue"):
+        rows[c] = np.arange(len(pts)) % 251
+    rows["gps_time"] = 1e9 + np.arange(len(pts)) / 7.0
+    src = tmp_path / "scan.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")], text=True).write(str(src))
+    assert main(["outliers", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
+
+    def whole(*a, **k):
+        raise AssertionError("the tiled run read the whole file")
+
+    monkeypatch.setattr(stream, "read_cloud", whole)
+    monkeypatch.setattr(stream, "CHUNK", 1000)
+    assert main(["outliers", str(src), str(tmp_path / "tiled.ply"), "--tiles", "1500",
+                 "--workers", "2", "--quiet"]) == 0
+    one = (tmp_path / "one.ply").read_bytes()
+    assert b"format ascii" in one[:30] and one.count(b"\n") < rows.size + 20
+    assert (tmp_path / "tiled.ply").read_bytes() == one
+
+
 def test_denoise_plan_replay_finds_the_cloud_decisions():
     # two tiles of 60 and 40 core rows and a fixed sequence of "is the RMS move
     # below tol" decisions; per decision each tile's sum of squared moves.  At
@@ -1091,10 +1124,12 @@ def _info(capsys, *argv):
     return capsys.readouterr().out
 
 
-def test_cli_info_in_blocks_prints_what_the_whole_read_prints(tmp_path, capsys):
-    # positions with non-finite rows and a few attributes, in a binary PLY read
-    # in blocks of 2000 rows: counts, rows left out, box, spacing, isolated
-    # points and every field's range as when the file is read whole
+@pytest.mark.parametrize("text", [False, True])
+def test_cli_info_in_blocks_prints_what_the_whole_read_prints(tmp_path, capsys, text):
+    # positions with non-finite rows and a few attributes, in a binary or an
+    # ASCII PLY read in blocks of 2000 rows: counts, rows left out, box,
+    # spacing, isolated points and every field's range as when the file is
+    # read whole
     import plyfile
 
     from pcprep.meshlab_bridge.formats import stream
@@ -1113,7 +1148,8 @@ def test_cli_info_in_blocks_prints_what_the_whole_read_prints(tmp_path, capsys):
     rows["confidence"] = g.random(5000)
     rows["confidence"][100] = np.nan
     src = tmp_path / "cloud.ply"
-    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")]).write(str(src))
+    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")], text=text).write(str(src))
+    assert stream._block_reader(str(src)) is not None
     whole = _info(capsys, str(src))
     assert "non-finite points: 3 (rows 17, 2500, 4999)" in whole and "confidence" in whole
     import unittest.mock

@@ -12,6 +12,8 @@ like any non-finite row.
 
 from __future__ import annotations
 
+import io
+import itertools
 import os
 
 import numpy as np
@@ -21,6 +23,8 @@ from pcprep.filters._validation import PointCloudError
 from ..cloud import Cloud
 
 _NORMALS = ("normal_x", "normal_y", "normal_z")
+#: rows parsed per block of an ASCII PCD read
+ASCII_BLOCK = 1 << 18
 _KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
          "POINTS", "DATA")
 
@@ -88,45 +92,79 @@ def _count(head: dict) -> int:
     return int(head.get("POINTS", [0])[0]) or int(head["WIDTH"][0]) * int(head["HEIGHT"][0])
 
 
+def data_kind(path: str) -> str:
+    """The PCD file's ``DATA`` line: ``ascii``, ``binary`` or another."""
+    with open(path, "rb") as f:
+        return _header(f, path)["DATA"][0]
+
+
+def ascii_rows(path: str, size: int):
+    """``(start, records)`` blocks of an ASCII PCD's rows (blank lines are
+    skipped), each parsed by NumPy's ``loadtxt`` as float64, then stored in
+    its field's type.  Refused, naming the rows: a row that is not numeric or
+    holds another number of values than the fields declare, fewer or more rows
+    than the header's point count."""
+    with open(path, "rb") as f:
+        head = _header(f, path)
+        dt = _dtype(head, path)
+        n = _count(head)
+        widths = [dt[name].shape[0] if dt[name].shape else 1 for name in dt.names]
+        lines = (line for line in f if line.strip())
+        start = 0
+        while True:
+            part = list(itertools.islice(lines, size))
+            if not part:
+                break
+            if start + len(part) > n:
+                more = start + len(part) + sum(1 for _ in lines)
+                raise PointCloudError(f"cannot read {path!r}: the header declares {n} "
+                                      f"points, the file holds {more} rows")
+            text = b"".join(part).decode("ascii", "replace")
+            try:
+                table = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=None,
+                                   ndmin=2)
+            except ValueError:
+                table = None
+            if table is None or table.shape[1] != sum(widths):
+                raise PointCloudError(
+                    f"cannot read {path!r}: in rows {start}–{start + len(part) - 1} (from 0) "
+                    f"a row is not numeric or does not hold the {sum(widths)} values of "
+                    "the header's fields") from None
+            data = np.zeros(len(part), dtype=dt)
+            col = 0
+            for name, width in zip(dt.names, widths):
+                vals = table[:, col:col + width]
+                data[name] = vals[:, 0] if not dt[name].shape else vals
+                col += width
+            yield start, data
+            start += len(part)
+    if start != n:
+        raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
+                              f"the file holds {start} rows")
+
+
 def blocks(path: str, size: int = 1 << 20):
-    """``(start, Cloud)`` blocks of a binary PCD's rows (None for another DATA)."""
+    """``(start, Cloud)`` blocks of a binary or ASCII PCD's rows (None for
+    another DATA)."""
     rows, head = binary_rows(path)
-    if rows is None:
-        return None
-    return ((s, _to_cloud(np.array(rows[s:s + size]), head, path))
-            for s in range(0, len(rows), size))
+    if rows is not None:
+        return ((s, _to_cloud(np.array(rows[s:s + size]), head, path))
+                for s in range(0, len(rows), size))
+    if head["DATA"][0] == "ascii":
+        return ((s, _to_cloud(data, head, path)) for s, data in ascii_rows(path, size))
+    return None
 
 
 def read(path: str) -> Cloud:
     rows, head = binary_rows(path)
     if rows is not None:
         return _to_cloud(np.array(rows), head, path)
-    with open(path, "rb") as f:
-        head = _header(f, path)
-        dt = _dtype(head, path)
-        n = _count(head)
-        mode = head["DATA"][0]
-        if mode == "ascii":
-            lines = [ln.split() for ln in f.read().decode("ascii", "replace").splitlines()
-                     if ln.strip()]
-            if len(lines) != n:
-                raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
-                                      f"the file holds {len(lines)} rows")
-            flat = [dt[name].shape[0] if dt[name].shape else 1 for name in dt.names]
-            data = np.zeros(n, dtype=dt)
-            try:
-                table = np.array(lines, dtype=np.float64)
-            except ValueError:
-                raise PointCloudError(f"cannot read {path!r}: a row is not numeric or has "
-                                      "the wrong number of values") from None
-            col = 0
-            for name, width in zip(dt.names, flat):
-                vals = table[:, col:col + width]
-                data[name] = vals[:, 0] if not dt[name].shape else vals
-                col += width
-        else:
-            raise PointCloudError(f"cannot read {path!r}: PCD DATA {mode} is not supported "
-                                  "(save it as ascii or binary, e.g. pcl_convert_pcd_ascii_binary)")
+    mode = head["DATA"][0]
+    if mode != "ascii":
+        raise PointCloudError(f"cannot read {path!r}: PCD DATA {mode} is not supported "
+                              "(save it as ascii or binary, e.g. pcl_convert_pcd_ascii_binary)")
+    parts = [data for _, data in ascii_rows(path, ASCII_BLOCK)]
+    data = np.concatenate(parts) if parts else np.zeros(0, dtype=_dtype(head, path))
     return _to_cloud(data, head, path)
 
 

@@ -4,18 +4,19 @@ stream.py
 Streamed reading and writing for tiled runs of clouds larger than memory.
 
 ``position_chunks(path)`` yields ``(start, xyz)`` blocks without loading the
-file: LAS/LAZ through laspy's chunk iterator, binary PLY memory-mapped by
-plyfile, binary PCD memory-mapped, XYZ parsed block by block, E57
+file: LAS/LAZ through laspy's chunk iterator, binary PLY and PCD memory-mapped,
+ASCII PLY of vertices alone, ASCII PCD and XYZ parsed block by block, E57
 through libe57's reader with block-sized buffers; the other formats are read
 whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
 input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57,
-binary PCD or a binary PLY of vertices alone: to LAS/LAZ (laspy's writer;
+PCD or a PLY of vertices alone: to LAS/LAZ (laspy's writer;
 from LAS/LAZ under the input's header, new results as extra dimensions, a
 removal copying the kept rows' records as they are; from another format under
 the header ``las.write`` gives the whole result, its scale and offset from a
-first pass over the written rows' positions), to binary PLY (plyfile's header,
-then the rows; the same bytes ``ply.write`` gives the whole result), to XYZ,
+first pass over the written rows' positions), to PLY (plyfile's header, then
+the rows, binary or ASCII as the input; the same bytes ``ply.write`` gives the
+whole result), to XYZ,
 to binary PCD and to E57 (the columns gathered on disk, then pye57 writes the
 scan from memory maps of them).  The inputs read whole go through
 ``read_cloud``/``write_cloud`` with the cloud in memory.  Every write is
@@ -66,13 +67,18 @@ def point_count(path) -> int:
     if ext == ".pcd":
         from . import pcd
 
-        rows, _ = pcd.binary_rows(path)
+        rows, head = pcd.binary_rows(path)
         if rows is not None:
             return len(rows)
+        if head["DATA"][0] == "ascii":
+            return pcd._count(head)
     if ext == ".ply":
         ply = _ply_mmap(path)
         if ply is not None:
             return int(ply["vertex"].count)
+        head = _ascii_ply(path)
+        if head is not None:
+            return head[1]
     return len(read_cloud(path))
 
 
@@ -86,6 +92,14 @@ def _ply_mmap(path):
     if b"format ascii" in head:
         return None
     return ply.load(path)
+
+
+def _ascii_ply(path):
+    """``ply.ascii_header`` of an ASCII PLY of vertices alone, None for any
+    other file."""
+    from . import ply
+
+    return ply.ascii_header(path)
 
 
 def position_chunks(path, size: int = CHUNK):
@@ -127,24 +141,35 @@ def position_chunks(path, size: int = CHUNK):
     if ext == ".pcd":
         from . import pcd
 
-        rows, _ = pcd.binary_rows(path)
+        rows, head = pcd.binary_rows(path)
         if rows is not None:
             yield from _record_positions(rows, size)
+            return
+        if head["DATA"][0] == "ascii":
+            for s, data in pcd.ascii_rows(path, size):
+                yield from _record_positions(data, size, s)
             return
     ply = _ply_mmap(path) if ext == ".ply" else None
     if ply is not None:
         yield from _record_positions(ply["vertex"].data, size)
+        return
+    if ext == ".ply" and _ascii_ply(path) is not None:
+        from .ply import ascii_vertex_blocks
+
+        for s, rows in ascii_vertex_blocks(path, size):
+            yield from _record_positions(rows, size, s)
         return
     pts = read_cloud(path).points
     for s in range(0, len(pts), size):
         yield s, pts[s:s + size]
 
 
-def _record_positions(rows: np.ndarray, size: int):
-    """``(start, xyz)`` blocks of memory-mapped records with fields x, y, z."""
+def _record_positions(rows: np.ndarray, size: int, first: int = 0):
+    """``(start, xyz)`` blocks of (memory-mapped) records with fields x, y, z,
+    the first of them row ``first`` of the file."""
     for s in range(0, len(rows), size):
         block = rows[s:s + size]
-        yield s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
+        yield first + s, np.column_stack([np.asarray(block[c], np.float64) for c in "xyz"])
 
 
 def normals_into(path, n: int, out: str):
@@ -275,8 +300,8 @@ class _Kept:
 
 def _block_reader(src: str):
     """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
-    every attribute kept, for LAS/LAZ, XYZ, E57, binary PCD and binary PLY
-    holding vertices alone; None for the formats read whole."""
+    every attribute kept, for LAS/LAZ, XYZ, E57, PCD and PLY holding vertices
+    alone; None for the formats read whole."""
     ext = _ext(src)
     if ext in _STREAMED:
         import laspy
@@ -304,13 +329,18 @@ def _block_reader(src: str):
     if ext == ".pcd":
         from . import pcd
 
-        if pcd.binary_rows(src)[0] is not None:
+        if pcd.data_kind(src) in ("binary", "ascii"):
             return lambda size: pcd.blocks(src, size)
         return None
+    from . import ply
+
+    head = _ascii_ply(src) if ext == ".ply" else None
+    if head is not None:
+        return lambda size: ((s, ply.vertex_cloud(rows, head[0], src, head[1]))
+                             for s, rows in ply.ascii_vertex_blocks(src, size))
     ply_data = _ply_mmap(src) if ext == ".ply" else None
     if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
-        return None  # ASCII, or faces and other elements that index every vertex
-    from . import ply
+        return None  # faces and other elements that index every vertex, or list properties
 
     def ply_blocks(size):
         v = ply_data["vertex"]
@@ -393,8 +423,8 @@ def _write_pcd(outputs, dst: str, count: int) -> int:
 
 
 def _write_ply(outputs, dst: str) -> int:
-    """Binary PLY block by block, the same file ``ply.write`` makes of the whole
-    result.  A column keeps the input's type only where every row's value
+    """PLY block by block, binary or ASCII as the input, the same file
+    ``ply.write`` makes of the whole result.  A column keeps the input's type only where every row's value
     fits it, so a first pass over the blocks settles each column's type (and
     whether an alpha is written) and the row count for the header; the second
     writes the rows.  ``outputs()`` gives the blocks' output clouds afresh."""
@@ -418,7 +448,10 @@ def _write_ply(outputs, dst: str) -> int:
                 layout = {n: types[n] for n in cols}
                 f.write(ply.header(layout, count, info))
                 rows = ply.row_type(layout, info)
-            f.write(ply.vertex_rows(cols, {n: rows[n] for n in cols}).tobytes())
+            if info.get("text"):
+                f.write(ply.text_rows(cols, layout))
+            else:
+                f.write(ply.vertex_rows(cols, {n: rows[n] for n in cols}).tobytes())
             written += len(out)
     return written
 
