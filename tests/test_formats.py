@@ -811,6 +811,32 @@ def test_e57_read_in_blocks_is_the_whole_read(tmp_path):
     assert np.array_equal(got, whole.points)
 
 
+def test_e57_fields_are_checked_on_the_first_block_alone(tmp_path, monkeypatch):
+    """Before a tiled run, the check that the output keeps the input's fields
+    reads the E57's first block, not every point's colours (the pass that
+    scales them): an output that would lose the colours is still refused."""
+    pytest.importorskip("pye57")
+    from pcprep.meshlab_bridge.formats import e57 as e57_io
+    from pcprep.meshlab_bridge.formats import stream
+
+    path = _two_scan_e57(tmp_path / "two.e57")
+    read, real = [], e57_io._raw_blocks
+
+    def counted(e57, i, fields, size):
+        for raw in real(e57, i, fields, size):
+            read.append(len(next(iter(raw.values()))))
+            yield raw
+
+    monkeypatch.setattr(e57_io, "_raw_blocks", counted)
+    stream.check_fields(path, tmp_path / "out.ply")
+    assert sum(read) == 700  # the first block (1024 rows asked, the first scan's 700)
+    with pytest.raises(PointCloudError, match="colou?r"):
+        stream.check_fields(path, tmp_path / "out.xyz")
+    read.clear()
+    whole = list(e57_io.blocks(str(path), 1024))  # a read for the run: colours scaled
+    assert sum(read) == 2 * 1150 and whole[0][1].colors[:, :3].max() <= 1.0
+
+
 @pytest.mark.parametrize("ext", [".stl", ".dxf", ".u3d", ".wrl", ".e57x", ""])
 def test_outputs_that_cannot_hold_the_result_are_refused_before_the_run(tmp_path, ext):
     src = tmp_path / "in.ply"

@@ -102,13 +102,16 @@ def _raw_blocks(e57, i: int, fields: list[str], size: int):
         reader.close()
 
 
-def blocks(path: str, size: int = 1 << 20, *, attributes: bool = True):
+def blocks(path: str, size: int = 1 << 20, *, attributes: bool = True,
+           colour_pass: bool = True):
     """``(start, Cloud)`` blocks of the file's points in order (scan by scan,
     at most ``size`` rows each), each what ``read`` gives for those rows: the
     scans' poses applied, the fields every scan has kept, ``scan_index``, and
     colours scaled as ``read`` scales them (by a first pass over the colour
     fields, which decides on every point).  ``attributes=False`` reads the
-    coordinates alone (and their invalid states)."""
+    coordinates alone (and their invalid states); ``colour_pass=False`` skips
+    that first pass and leaves the colours unscaled, for a look at which
+    fields the blocks hold (``stream.check_fields``)."""
     e57 = _open(path)
     if e57.scan_count == 0:
         raise PointCloudError(f"cannot read {path!r}: the file holds no scan")
@@ -119,7 +122,7 @@ def blocks(path: str, size: int = 1 << 20, *, attributes: bool = True):
     common = [f for f in fields[0] if all(f in fs for fs in fields)]
     top = None
     if attributes and all(c in common for c in _RGB):
-        top = max((float(max(raw[c].max() for c in _RGB)) if len(raw[_RGB[0]]) else 1.0)
+        top = 1.0 if not colour_pass else max((float(max(raw[c].max() for c in _RGB)) if len(raw[_RGB[0]]) else 1.0)
                   for i in range(e57.scan_count) for raw in _raw_blocks(e57, i, list(_RGB), size))
     start = 0
     for i in range(e57.scan_count):
