@@ -210,7 +210,16 @@ def _load_index_kernels() -> None:
 
 
 def source_from_array(points: np.ndarray, scratch: str) -> Source:
-    points = np.asarray(points, dtype=np.float64)
+    """``ingest`` of an (n, 3) array or memory map, converted to float64 a
+    chunk at a time (a float32 memory map is never copied whole)."""
+    if not isinstance(points, np.ndarray):
+        try:
+            points = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise PointCloudError(f"points must be numeric, got {type(points).__name__}"
+                                  ) from exc
+    if points.dtype.kind not in "fiu":
+        raise PointCloudError(f"points must be numeric, got an array of {points.dtype}")
     if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
         raise PointCloudError(f"points must be a non-empty (n, 3) array, got {points.shape}")
     return ingest(((s, points[s:s + CHUNK]) for s in range(0, len(points), CHUNK)),

@@ -1034,6 +1034,31 @@ def test_normals_in_the_scratch_folder_are_read_in_place(client, tmp_path, monke
     assert tiles._in_folder(stored, str(tmp_path)) and not tiles._in_folder(view, str(tmp_path))
 
 
+def test_a_float32_memory_map_is_converted_a_chunk_at_a_time(tmp_path, monkeypatch):
+    # a float32 (n, 3) memory map larger than memory must not become one
+    # float64 copy: ingest gets slices of the map, and stores their float64 values
+    pts = np.lib.format.open_memmap(str(tmp_path / "p.npy"), mode="w+", dtype=np.float32,
+                                    shape=(5000, 3))
+    pts[:] = CLOUD[:5000] - CLOUD[:5000].mean(axis=0)
+    seen, real = [], tiles.ingest
+    monkeypatch.setattr(tiles, "CHUNK", 1200)
+
+    def spy(chunks, n, scratch):
+        def watched():
+            for s, block in chunks:
+                seen.append((block.dtype, len(block)))
+                yield s, block
+        return real(watched(), n, scratch)
+
+    monkeypatch.setattr(tiles, "ingest", spy)
+    src = tiles.source_from_array(pts, str(tmp_path))
+    assert seen == [(np.float32, 1200)] * 4 + [(np.float32, 200)]
+    assert np.array_equal(np.asarray(src.xyz), np.asarray(pts, dtype=np.float64))
+    for bad in (np.array([["a", "b", "c"]]), np.zeros((4, 3), dtype=complex)):
+        with pytest.raises(PointCloudError, match="numeric"):
+            tiles.source_from_array(bad, str(tmp_path))
+
+
 def test_cli_refuses_a_scratch_folder_without_room_before_reading(tmp_path, capsys,
                                                                  monkeypatch):
     # --scratch names the folder; one without the room the run needs is
