@@ -252,12 +252,15 @@ def test_streamed_ply_column_type_is_settled_over_every_block(tmp_path):
     assert np.array_equal(back["x"], moved[:, 0])
 
 
-def test_ascii_ply_is_read_in_blocks_as_it_is_read_whole(tmp_path):
+@pytest.mark.parametrize("parse_rows", [128, 1 << 16])
+def test_ascii_ply_is_read_in_blocks_as_it_is_read_whole(tmp_path, monkeypatch, parse_rows):
     """An ASCII PLY of vertices alone is parsed block by block (NumPy's
-    loadtxt, each column in its type): every block's cloud holds the rows,
-    attributes, types and header facts of the whole read, at any block size;
-    a PLY with faces is still read whole."""
-    from pcprep.meshlab_bridge.formats import stream
+    loadtxt, each column in its type, ``PARSE_ROWS`` rows at a time): every
+    block's cloud holds the rows, attributes, types and header facts of the
+    whole read, at any block size; a PLY with faces is still read whole."""
+    from pcprep.meshlab_bridge.formats import ply, stream
+
+    monkeypatch.setattr(ply, "PARSE_ROWS", parse_rows)
 
     src = _ply_float32(tmp_path / "in.ply", 2500, "ascii")
     whole = formats.read_cloud(src)
@@ -615,7 +618,7 @@ def _ascii_pcd(binary, path):
 
 
 @pytest.mark.parametrize("data", ["binary", "ascii"])
-def test_pcd_streams_as_its_whole_read(tmp_path, data):
+def test_pcd_streams_as_its_whole_read(tmp_path, monkeypatch, data):
     """A binary PCD is memory-mapped for a tiled run, an ASCII PCD parsed
     block by block: positions and blocks are the whole read's, a PLY written
     from its blocks is the whole write, and a file cut short is refused with
@@ -624,7 +627,7 @@ def test_pcd_streams_as_its_whole_read(tmp_path, data):
 
     from pcprep.meshlab_bridge import registry
     from pcprep.meshlab_bridge.apply import result_cloud
-    from pcprep.meshlab_bridge.formats import pcd, stream
+    from pcprep.meshlab_bridge.formats import pcd, ply, stream
 
     g = np.random.default_rng(8)
     n = 2500
@@ -634,6 +637,7 @@ def test_pcd_streams_as_its_whole_read(tmp_path, data):
     path = tmp_path / "a.pcd"
     assert b"DATA binary" in path.read_bytes()[:400]
     if data == "ascii":
+        monkeypatch.setattr(ply, "PARSE_ROWS", 256)  # blocks of 700 from parses of 256
         binary = formats.read_cloud(path)
         path = _ascii_pcd(path, tmp_path / "t.pcd")
         whole = formats.read_cloud(path)
@@ -682,7 +686,7 @@ def test_pcd_streams_as_its_whole_read(tmp_path, data):
             formats.read_cloud(path)
         bad = lines[:-5] + [lines[-5].replace(b" ", b" x", 1)] + lines[-4:]
         path.write_bytes(b"".join(bad))
-        with pytest.raises(PointCloudError, match=f"rows 2100–{n - 1} .*not numeric"):
+        with pytest.raises(PointCloudError, match=f"rows 2356–{n - 1} .*not numeric"):
             for _ in stream._block_reader(str(path))(700):
                 pass
         return

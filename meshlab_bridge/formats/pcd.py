@@ -100,47 +100,59 @@ def data_kind(path: str) -> str:
 
 def ascii_rows(path: str, size: int):
     """``(start, records)`` blocks of an ASCII PCD's rows (blank lines are
-    skipped), each parsed by NumPy's ``loadtxt`` as float64, then stored in
-    its field's type.  Refused, naming the rows: a row that is not numeric or
-    holds another number of values than the fields declare, fewer or more rows
-    than the header's point count."""
+    skipped), parsed by NumPy's ``loadtxt`` as float64 (``ply.PARSE_ROWS``
+    rows at a time), then stored in each field's type.  Refused, naming the
+    rows: a row that is not numeric or holds another number of values than
+    the fields declare, fewer or more rows than the header's point count."""
+    from .ply import PARSE_ROWS
+
     with open(path, "rb") as f:
         head = _header(f, path)
         dt = _dtype(head, path)
         n = _count(head)
-        widths = [dt[name].shape[0] if dt[name].shape else 1 for name in dt.names]
         lines = (line for line in f if line.strip())
         start = 0
         while True:
-            part = list(itertools.islice(lines, size))
-            if not part:
+            parts, m = [], 0
+            while m < size:
+                part = list(itertools.islice(lines, min(PARSE_ROWS, size - m)))
+                if not part:
+                    break
+                if start + m + len(part) > n:
+                    more = start + m + len(part) + sum(1 for _ in lines)
+                    raise PointCloudError(f"cannot read {path!r}: the header declares {n} "
+                                          f"points, the file holds {more} rows")
+                parts.append(_parse_rows(part, start + m, dt, path))
+                m += len(part)
+            if not parts:
                 break
-            if start + len(part) > n:
-                more = start + len(part) + sum(1 for _ in lines)
-                raise PointCloudError(f"cannot read {path!r}: the header declares {n} "
-                                      f"points, the file holds {more} rows")
-            text = b"".join(part).decode("ascii", "replace")
-            try:
-                table = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=None,
-                                   ndmin=2)
-            except ValueError:
-                table = None
-            if table is None or table.shape[1] != sum(widths):
-                raise PointCloudError(
-                    f"cannot read {path!r}: in rows {start}–{start + len(part) - 1} (from 0) "
-                    f"a row is not numeric or does not hold the {sum(widths)} values of "
-                    "the header's fields") from None
-            data = np.zeros(len(part), dtype=dt)
-            col = 0
-            for name, width in zip(dt.names, widths):
-                vals = table[:, col:col + width]
-                data[name] = vals[:, 0] if not dt[name].shape else vals
-                col += width
-            yield start, data
-            start += len(part)
+            yield start, parts[0] if len(parts) == 1 else np.concatenate(parts)
+            start += m
     if start != n:
         raise PointCloudError(f"cannot read {path!r}: the header declares {n} points, "
                               f"the file holds {start} rows")
+
+
+def _parse_rows(part: list[bytes], start: int, dt: np.dtype, path: str) -> np.ndarray:
+    """Rows ``start``… of an ASCII PCD from their lines ``part``."""
+    widths = [dt[name].shape[0] if dt[name].shape else 1 for name in dt.names]
+    try:
+        table = np.loadtxt(io.StringIO(b"".join(part).decode("ascii", "replace")),
+                           dtype=np.float64, comments=None, ndmin=2)
+    except ValueError:
+        table = None
+    if table is None or table.shape[1] != sum(widths):
+        raise PointCloudError(
+            f"cannot read {path!r}: in rows {start}–{start + len(part) - 1} (from 0) a row "
+            f"is not numeric or does not hold the {sum(widths)} values of the header's "
+            "fields")
+    data = np.zeros(len(part), dtype=dt)
+    col = 0
+    for name, width in zip(dt.names, widths):
+        vals = table[:, col:col + width]
+        data[name] = vals[:, 0] if not dt[name].shape else vals
+        col += width
+    return data
 
 
 def blocks(path: str, size: int = 1 << 20):

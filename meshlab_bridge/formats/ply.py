@@ -171,39 +171,52 @@ def ascii_header(path: str):
     return ply, count, offset
 
 
+#: ASCII rows parsed at once: the lines, their text and loadtxt's buffer take
+#: about 8 bytes per byte of text, so a parse stays within tens of MB whatever
+#: the block asked for
+PARSE_ROWS = 1 << 16
+
+
 def ascii_vertex_blocks(path: str, size: int):
     """``(start, rows)`` blocks of an ASCII PLY's vertex rows (``ascii_header``
     says which files), each a structured array of the header's property types,
-    parsed by NumPy's ``loadtxt`` with the type of each column, which gives
-    the values plyfile's row-by-row parse gives.  Refused as the whole read
-    refuses them: a blank or short line among the declared rows, a row with
-    another number of values or one that does not parse as its type, fewer
-    rows than declared or rows after them; the error names the rows."""
+    parsed by NumPy's ``loadtxt`` with the type of each column (``PARSE_ROWS``
+    at a time), which gives the values plyfile's row-by-row parse gives.
+    Refused as the whole read refuses them: a blank or short line among the
+    declared rows, a row with another number of values or one that does not
+    parse as its type, fewer rows than declared or rows after them; the error
+    names the rows."""
     ply, count, offset = ascii_header(path)
     dtype = ply["vertex"].dtype()
     start = 0
     with open(path, "rb") as f:
         f.seek(offset)
         while start < count:
-            lines = list(itertools.islice(f, min(size, count - start)))
-            short = next((j for j, line in enumerate(lines) if not line.strip()), len(lines))
-            if short < min(size, count - start):
-                raise PointCloudError(
-                    f"cannot read {path!r}: vertex row {start + short} (from 0) of the "
-                    f"{count} the header declares is " + ("blank" if short < len(lines)
-                                                          else "missing"))
-            try:
-                rows = np.loadtxt(io.StringIO(b"".join(lines).decode("ascii")), dtype=dtype,
-                                  comments=None, ndmin=1)
-            except (ValueError, UnicodeDecodeError) as exc:
-                raise PointCloudError(f"cannot read {path!r}: "
-                                      f"{_row_fault(lines, start, dtype) or exc}") from None
-            yield start, rows
-            start += len(rows)
+            m = min(size, count - start)
+            parts = [_parse_rows(f, path, start + s, min(PARSE_ROWS, m - s), count, dtype)
+                     for s in range(0, m, PARSE_ROWS)]
+            yield start, parts[0] if len(parts) == 1 else np.concatenate(parts)
+            start += m
         more = sum(1 for line in f if line.strip())
         if more:
             raise PointCloudError(f"cannot read {path!r}: the header declares {count} rows "
                                   f"({count} vertex) but the file holds {count + more}")
+
+
+def _parse_rows(f, path: str, first: int, m: int, count: int, dtype: np.dtype) -> np.ndarray:
+    """The next ``m`` vertex rows of ``f`` (rows ``first``… of ``count``)."""
+    lines = list(itertools.islice(f, m))
+    short = next((j for j, line in enumerate(lines) if not line.strip()), len(lines))
+    if short < m:
+        raise PointCloudError(
+            f"cannot read {path!r}: vertex row {first + short} (from 0) of the {count} the "
+            "header declares is " + ("blank" if short < len(lines) else "missing"))
+    try:
+        return np.loadtxt(io.StringIO(b"".join(lines).decode("ascii")), dtype=dtype,
+                          comments=None, ndmin=1)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise PointCloudError(f"cannot read {path!r}: "
+                              f"{_row_fault(lines, first, dtype) or exc}") from None
 
 
 def _row_fault(lines: list[bytes], start: int, dtype: np.dtype) -> str | None:
