@@ -122,8 +122,11 @@ def blocks(path: str, size: int = 1 << 20, *, attributes: bool = True,
     common = [f for f in fields[0] if all(f in fs for fs in fields)]
     top = None
     if attributes and all(c in common for c in _RGB):
-        top = 1.0 if not colour_pass else max((float(max(raw[c].max() for c in _RGB)) if len(raw[_RGB[0]]) else 1.0)
-                  for i in range(e57.scan_count) for raw in _raw_blocks(e57, i, list(_RGB), size))
+        top = 1.0
+        if colour_pass:
+            top = max((float(max(raw[c].max() for c in _RGB)) if len(raw[_RGB[0]]) else 1.0)
+                      for i in range(e57.scan_count)
+                      for raw in _raw_blocks(e57, i, list(_RGB), size))
     start = 0
     for i in range(e57.scan_count):
         header = e57.get_header(i)

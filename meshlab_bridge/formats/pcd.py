@@ -23,8 +23,6 @@ from pcprep.filters._validation import PointCloudError
 from ..cloud import Cloud
 
 _NORMALS = ("normal_x", "normal_y", "normal_z")
-#: rows parsed per block of an ASCII PCD read
-ASCII_BLOCK = 1 << 18
 _KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
          "POINTS", "DATA")
 
@@ -175,7 +173,9 @@ def read(path: str) -> Cloud:
     if mode != "ascii":
         raise PointCloudError(f"cannot read {path!r}: PCD DATA {mode} is not supported "
                               "(save it as ascii or binary, e.g. pcl_convert_pcd_ascii_binary)")
-    parts = [data for _, data in ascii_rows(path, ASCII_BLOCK)]
+    from .ply import TEXT_BLOCK
+
+    parts = [data for _, data in ascii_rows(path, TEXT_BLOCK)]
     data = np.concatenate(parts) if parts else np.zeros(0, dtype=_dtype(head, path))
     return _to_cloud(data, head, path)
 

@@ -11,8 +11,9 @@ data holds more or fewer rows than its header declares is refused.  Writing
 restores the input's property order and types where the values still fit them
 exactly (so an unchanged float32 column stays float32) and uses float64
 otherwise; new attributes are appended.  An ASCII PLY of vertices alone is
-parsed and written by NumPy in blocks (plyfile's row-by-row loop took 35 µs
-per row to read and 89 µs to write), with plyfile's values and bytes.
+parsed and written by NumPy in blocks, with plyfile's values and bytes
+(plyfile's loop over rows took 18 µs per row to read and 52 µs to write a
+10⁶-row file, NumPy 3.8 and 4.7 µs).
 """
 
 from __future__ import annotations
@@ -42,13 +43,13 @@ class _KeepOpen(io.FileIO):
         super().close()
 
 
-#: vertex rows parsed per block of an ASCII PLY read
+#: rows per block of a whole ASCII PLY read or write (and ASCII PCD read)
 TEXT_BLOCK = 1 << 18
 
 
 def read(path: str) -> Cloud:
     head = ascii_header(path)
-    if head is not None:  # ASCII vertices alone: NumPy's parser, 7x plyfile's row loop
+    if head is not None:  # ASCII vertices alone: NumPy's parser
         ply, count, _ = head
         blocks = [rows for _, rows in ascii_vertex_blocks(path, TEXT_BLOCK)]
         rows = np.concatenate(blocks) if blocks else np.empty(0, ply["vertex"].dtype())
@@ -320,7 +321,7 @@ def write(cloud: Cloud, path: str) -> None:
     info = cloud.meta.get("ply", {})
     if len(cloud) == info.get("n_vertices", -1):  # edges etc. index the original rows
         elements += list(info.get("other_elements", {}).values())
-    if info.get("text") and len(elements) == 1:  # plyfile's bytes, 13x faster
+    if info.get("text") and len(elements) == 1:  # plyfile's bytes, by NumPy
         with open(path, "wb") as f:
             f.write(header({n: v.dtype for n, v in cols.items()}, len(vertex), info))
             for s in range(0, len(vertex), TEXT_BLOCK):

@@ -77,7 +77,9 @@ def point_count(path) -> int:
         ply = _ply_mmap(path)
         if ply is not None:
             return int(ply["vertex"].count)
-        head = _ascii_ply(path)
+        from .ply import ascii_header
+
+        head = ascii_header(path)
         if head is not None:
             return head[1]
     return len(read_cloud(path))
@@ -93,14 +95,6 @@ def _ply_mmap(path):
     if b"format ascii" in head:
         return None
     return ply.load(path)
-
-
-def _ascii_ply(path):
-    """``ply.ascii_header`` of an ASCII PLY of vertices alone, None for any
-    other file."""
-    from . import ply
-
-    return ply.ascii_header(path)
 
 
 def position_chunks(path, size: int = CHUNK):
@@ -154,9 +148,9 @@ def position_chunks(path, size: int = CHUNK):
     if ply is not None:
         yield from _record_positions(ply["vertex"].data, size)
         return
-    if ext == ".ply" and _ascii_ply(path) is not None:
-        from .ply import ascii_vertex_blocks
+    from .ply import ascii_header, ascii_vertex_blocks
 
+    if ext == ".ply" and ascii_header(path) is not None:
         for s, rows in ascii_vertex_blocks(path, size):
             yield from _record_positions(rows, size, s)
         return
@@ -339,7 +333,7 @@ def _block_reader(src: str):
         return None
     from . import ply
 
-    head = _ascii_ply(src) if ext == ".ply" else None
+    head = ply.ascii_header(src) if ext == ".ply" else None
     if head is not None:
         return lambda size: ((s, ply.vertex_cloud(rows, head[0], src, head[1]))
                              for s, rows in ply.ascii_vertex_blocks(src, size))
