@@ -51,7 +51,7 @@ def read(path: str) -> Cloud:
     head = ascii_header(path)
     if head is not None:  # ASCII vertices alone: NumPy's parser
         ply, count, _ = head
-        blocks = [rows for _, rows in ascii_vertex_blocks(path, TEXT_BLOCK)]
+        blocks = [rows for _, rows in ascii_vertex_blocks(path, TEXT_BLOCK, head)]
         rows = np.concatenate(blocks) if blocks else np.empty(0, ply["vertex"].dtype())
         return vertex_cloud(rows, ply, path, count)
     ply = load(path)
@@ -178,7 +178,7 @@ def ascii_header(path: str):
 PARSE_ROWS = 1 << 16
 
 
-def ascii_vertex_blocks(path: str, size: int):
+def ascii_vertex_blocks(path: str, size: int, head=None):
     """``(start, rows)`` blocks of an ASCII PLY's vertex rows (``ascii_header``
     says which files), each a structured array of the header's property types,
     parsed by NumPy's ``loadtxt`` with the type of each column (``PARSE_ROWS``
@@ -186,8 +186,9 @@ def ascii_vertex_blocks(path: str, size: int):
     Refused as the whole read refuses them: a blank or short line among the
     declared rows, a row with another number of values or one that does not
     parse as its type, fewer rows than declared or rows after them; the error
-    names the rows."""
-    ply, count, offset = ascii_header(path)
+    names the rows.  ``head`` is the file's ``ascii_header`` where the caller
+    has it."""
+    ply, count, offset = ascii_header(path) if head is None else head
     dtype = ply["vertex"].dtype()
     start = 0
     with open(path, "rb") as f:

@@ -150,8 +150,9 @@ def position_chunks(path, size: int = CHUNK):
         return
     from .ply import ascii_header, ascii_vertex_blocks
 
-    if ext == ".ply" and ascii_header(path) is not None:
-        for s, rows in ascii_vertex_blocks(path, size):
+    head = ascii_header(path) if ext == ".ply" else None
+    if head is not None:
+        for s, rows in ascii_vertex_blocks(path, size, head):
             yield from _record_positions(rows, size, s)
         return
     pts = read_cloud(path).points
@@ -336,7 +337,7 @@ def _block_reader(src: str):
     head = ply.ascii_header(src) if ext == ".ply" else None
     if head is not None:
         return lambda size: ((s, ply.vertex_cloud(rows, head[0], src, head[1]))
-                             for s, rows in ply.ascii_vertex_blocks(src, size))
+                             for s, rows in ply.ascii_vertex_blocks(src, size, head))
     ply_data = _ply_mmap(src) if ext == ".ply" else None
     if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
         return None  # faces and other elements that index every vertex, or list properties
