@@ -552,6 +552,119 @@ def test_ply_with_more_rows_than_declared_is_refused(tmp_path):
         formats.read_cloud(tmp_path / "b.ply")
 
 
+def _fan_reference(polygons):
+    """Each polygon fanned from its first vertex, by the plain loop."""
+    tris = [(p[0], p[j], p[j + 1]) for p in polygons for j in range(1, len(p) - 1)]
+    return np.array(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def test_fan_triangles_is_the_plain_fan(tmp_path):
+    from pcprep.meshlab_bridge.formats.ply import fan_triangles
+
+    g = np.random.default_rng(5)
+    sizes = g.integers(0, 8, 400)
+    polys = np.empty(len(sizes), dtype=object)
+    polys[:] = [g.integers(0, 10**6, s).astype("u4") for s in sizes]
+    got = fan_triangles(polys)
+    assert got.dtype == np.int64 and np.array_equal(got, _fan_reference(polys))
+    assert len(got) == np.maximum(sizes - 2, 0).sum() > 0
+    for m in (2, 3, 4, 6):  # fixed-size rows (a memory-mapped face element)
+        rows = g.integers(0, 10**6, (50, m)).astype("i4")
+        assert np.array_equal(fan_triangles(rows), _fan_reference(rows)), m
+        obj = np.empty(50, dtype=object)
+        obj[:] = list(rows)
+        assert np.array_equal(fan_triangles(obj), fan_triangles(rows)), m
+
+
+def _mesh_ply(path, polygons, n=60, order="<", text=False, edges=False):
+    """A PLY of ``n`` vertices and the faces ``polygons`` (one list each),
+    with a per-face colour; and an ``edge`` element (``edges`` True) or one
+    with a list property (``"list"``) when asked."""
+    g = np.random.default_rng(len(polygons))
+    v = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("intensity", "u2")])
+    for c in "xyz":
+        v[c] = g.random(n)
+    v["intensity"] = g.integers(0, 65535, n)
+    face = np.empty(len(polygons), dtype=[("vertex_indices", "O"), ("red", "u1")])
+    face["vertex_indices"] = [np.asarray(p, dtype="i4") for p in polygons]
+    face["red"] = g.integers(0, 255, len(polygons))
+    els = [PlyElement.describe(v, "vertex"), PlyElement.describe(face, "face")]
+    if edges == "list":  # an element with a list property of its own
+        e = np.empty(3, dtype=[("vertex_list", "O")])
+        e["vertex_list"] = [np.arange(k, dtype="i4") for k in (2, 5, 3)]
+        els.append(PlyElement.describe(e, "path"))
+    elif edges:
+        e = np.zeros(4, dtype=[("vertex1", "i4"), ("vertex2", "i4")])
+        e["vertex1"], e["vertex2"] = [0, 1, 2, 3], [1, 2, 3, 4]
+        els.append(PlyElement.describe(e, "edge"))
+    PlyData(els, text=text, byte_order=order).write(str(path))
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_binary_triangle_mesh_is_read_without_plyfile_row_loop(tmp_path, monkeypatch, order):
+    """A binary PLY of triangles is memory-mapped whole, faces too: the faces
+    read are plyfile's own parse, while plyfile's row-by-row reader is made to
+    fail.  A mesh with a quad is read row by row, as before, and fanned."""
+    import plyfile
+
+    g = np.random.default_rng(2)
+    tris = [list(g.choice(60, 3, replace=False)) for _ in range(200)]
+    _mesh_ply(tmp_path / "t.ply", tris, order=order, edges=True)
+    _mesh_ply(tmp_path / "q.ply", tris[:50] + [[0, 1, 2, 3]] + tris[50:], order=order)
+    plain = {name: formats.read_cloud(tmp_path / name) for name in ("t.ply", "q.ply")}
+    assert np.array_equal(plain["t.ply"].faces, _fan_reference(tris))
+    assert np.array_equal(plain["q.ply"].faces,
+                          _fan_reference(tris[:50] + [[0, 1, 2, 3]] + tris[50:]))
+
+    def refuse(self, *args):
+        raise AssertionError("plyfile parsed a binary element row by row")
+
+    monkeypatch.setattr(plyfile.PlyElement, "_read_bin", refuse)
+    fast = formats.read_cloud(tmp_path / "t.ply")
+    assert np.array_equal(fast.faces, plain["t.ply"].faces)
+    assert np.array_equal(fast.points, plain["t.ply"].points)
+    assert list(fast.meta["ply"]["other_elements"]) == ["edge"]
+    with pytest.raises(AssertionError, match="row by row"):
+        formats.read_cloud(tmp_path / "q.ply")
+
+
+def test_cut_binary_triangle_mesh_is_refused_as_before(tmp_path):
+    tris = [[0, 1, 2], [1, 2, 3]] * 40
+    _mesh_ply(tmp_path / "t.ply", tris)
+    data = (tmp_path / "t.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[:-7])
+    with pytest.raises(PointCloudError, match="early end-of-file"):
+        formats.read_cloud(tmp_path / "cut.ply")
+    (tmp_path / "long.ply").write_bytes(data + b"\x01" * 40)
+    with pytest.raises(PointCloudError, match="continues after"):
+        formats.read_cloud(tmp_path / "long.ply")
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+@pytest.mark.parametrize("edges", [False, True, "list"])
+def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
+    """The faces of a binary PLY are written as records, not by plyfile's row
+    loop, with plyfile's bytes: a mesh with another element and both byte
+    orders; an element with a list of its own goes through plyfile."""
+    from pcprep.meshlab_bridge.formats import ply
+
+    g = np.random.default_rng(3)
+    polys = [list(g.choice(60, m, replace=False)) for m in g.integers(3, 6, 300)]
+    _mesh_ply(tmp_path / "in.ply", polys, order=order, edges=edges)
+    cloud = formats.read_cloud(tmp_path / "in.ply")
+    formats.write_cloud(cloud, tmp_path / "ours.ply")
+    cols = ply.vertex_columns(cloud)
+    face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = cloud.faces
+    els = [PlyElement.describe(ply.vertex_rows(cols, {k: c.dtype for k, c in cols.items()}),
+                               "vertex"), PlyElement.describe(face, "face")]
+    els += list(cloud.meta["ply"]["other_elements"].values())
+    PlyData(els, byte_order=order).write(str(tmp_path / "plyfile.ply"))
+    assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "plyfile.ply").read_bytes()
+    back = formats.read_cloud(tmp_path / "ours.ply")
+    assert np.array_equal(back.faces, cloud.faces) and len(back.faces) > len(polys)
+
+
 @pytest.mark.parametrize("name, text, match", [
     ("nan.off", "OFF\n3 0 0\n0 0 0\nnan nan nan\n1 1 1\n", r"rows 1\)"),
     ("nan.obj", "v 0 0 0\nv 1 1 1\nv inf 0 0\n", r"rows 2\)"),

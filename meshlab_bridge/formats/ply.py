@@ -43,7 +43,8 @@ class _KeepOpen(io.FileIO):
         super().close()
 
 
-#: rows per block of a whole ASCII PLY read or write (and ASCII PCD read)
+#: rows per block of a whole ASCII PLY read or write (and ASCII PCD read), and
+#: faces per block of a binary write
 TEXT_BLOCK = 1 << 18
 
 
@@ -71,10 +72,18 @@ def load(path: str):
 
     f = _KeepOpen(path, "rb")
     try:
-        try:
-            ply = PlyData.read(f)
-        except PlyParseError as exc:
-            raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
+        ply = None
+        triangles = _triangle_lists(f)
+        if triangles:  # memory-map the faces too, when every one is a triangle
+            try:
+                ply = PlyData.read(f, known_list_len={"face": triangles})
+            except PlyParseError:
+                f.seek(0)  # some face is not a triangle, or the file is damaged
+        if ply is None:
+            try:
+                ply = PlyData.read(f)
+            except PlyParseError as exc:
+                raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
         if "vertex" not in ply:
             raise PointCloudError(f"cannot read {path!r}: no vertex element")
         if ply.text:
@@ -88,6 +97,39 @@ def load(path: str):
     finally:
         f.really_close()
     return ply
+
+
+def _triangle_lists(f) -> dict:
+    """``{name: 3}`` for the face element's vertex-index list of a binary PLY
+    (the form of plyfile's ``known_list_len``), read from the header's lines;
+    empty for an ASCII file or one without such a list (a header plyfile
+    would not parse is refused by the read that follows).  The stream is left
+    at its start.
+
+    plyfile parses an element with a list property row by row in Python
+    (about 4 µs a face here), unless told each list's length, when it
+    memory-maps the element and refuses it if any row's count differs.  A
+    mesh of triangles is then read at the speed of its vertices; any other
+    mesh is read again, row by row, as before."""
+    element, lists, binary = None, [], False
+    try:
+        for _ in range(10_000):
+            tok = f.readline(4096).split()
+            if tok[:1] == [b"end_header"]:
+                break
+            if tok[:1] == [b"format"]:
+                binary = tok[1:2] != [b"ascii"]
+            elif tok[:1] == [b"element"]:
+                element = tok[1:2]
+            elif tok[:2] == [b"property", b"list"] and element == [b"face"]:
+                lists.append(tok[-1])
+        else:
+            return {}
+    finally:
+        f.seek(0)
+    if not binary or lists not in ([b"vertex_indices"], [b"vertex_index"]):
+        return {}
+    return {lists[0].decode("ascii"): 3}
 
 
 def vertex_cloud(data: np.ndarray, ply, path: str, count: int | None = None) -> Cloud:
@@ -273,16 +315,34 @@ def _faces(ply, n: int, path: str) -> np.ndarray | None:
                None)
     if key is None:
         return None
-    tris = []
-    for poly in el.data[key]:
-        poly = np.asarray(poly, dtype=np.int64)
-        for j in range(1, len(poly) - 1):  # fan-triangulate polygons
-            tris.append((poly[0], poly[j], poly[j + 1]))
-    faces = np.array(tris, dtype=np.int64).reshape(-1, 3)
+    faces = fan_triangles(el.data[key])
     if len(faces) and (faces.min() < 0 or faces.max() >= n):
         raise PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
                               f"does not exist (index {int(faces.max())}, {n} vertices)")
     return faces
+
+
+def fan_triangles(polygons) -> np.ndarray:
+    """(t, 3) int64 triangles of the faces ``polygons`` (a (f, m) array of
+    indices, or an object array of index lists), each polygon fanned from its
+    first vertex, (v₀, v_j, v_j+1) for j = 1 … m − 2, polygon after polygon;
+    a polygon of fewer than three vertices gives none."""
+    polygons = np.asarray(polygons)
+    if polygons.dtype != object:
+        rows = polygons.astype(np.int64).reshape(len(polygons), -1)
+        j = np.arange(1, rows.shape[1] - 1)
+        fan = np.stack([np.repeat(rows[:, :1], len(j), axis=1), rows[:, j], rows[:, j + 1]],
+                       axis=2)
+        return fan.reshape(-1, 3)
+    sizes = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+    flat = (np.concatenate(polygons).astype(np.int64, copy=False) if len(polygons)
+            else np.empty(0, np.int64))
+    first = np.cumsum(sizes) - sizes  # each polygon's first index in ``flat``
+    n_tri = np.maximum(sizes - 2, 0)
+    owner = np.repeat(np.arange(len(polygons)), n_tri)
+    j = np.arange(n_tri.sum()) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    base = first[owner]
+    return np.stack([flat[base], flat[base + j], flat[base + j + 1]], axis=1)
 
 
 def _fits(values: np.ndarray, dtype: np.dtype) -> bool:
@@ -329,7 +389,40 @@ def write(cloud: Cloud, path: str) -> None:
                 f.write(text_rows({n: v[s:s + TEXT_BLOCK] for n, v in cols.items()},
                                   {n: vertex.dtype[n] for n in cols}))
         return
-    _ply_data(elements, info).write(path)
+    data = _ply_data(elements, info)
+    if data.text or any(_has_list(el) for el in elements[1:] if el.name != "face"):
+        data.write(path)
+    else:
+        _write_binary(data, path)
+
+
+def _has_list(el) -> bool:
+    from plyfile import PlyListProperty
+
+    return any(isinstance(p, PlyListProperty) for p in el.properties)
+
+
+def _write_binary(data, path: str) -> None:
+    """The bytes ``data.write(path)`` gives for a binary PLY whose one list
+    property is the triangles' ``vertex_indices`` (count ``uchar`` 3, indices
+    ``int``): plyfile writes a list property row by row in Python (about
+    4 µs a face here), so the faces are written here as one record per
+    triangle, 2¹⁸ at a time; every other element as plyfile writes it."""
+    order = data.byte_order
+    with open(path, "wb") as f:
+        f.write(data.header.encode("ascii") + b"\n")
+        for el in data.elements:
+            if el.name != "face":
+                f.write(el.data.astype(el.dtype(order), copy=False).data)
+                continue
+            tri = el.data["vertex_indices"]
+            rows = np.empty(min(len(tri), TEXT_BLOCK),
+                            dtype=[("n", "u1"), ("v", order + "i4", (3,))])
+            rows["n"] = 3
+            for s in range(0, len(tri), TEXT_BLOCK):
+                part = rows[:len(tri) - s] if s + TEXT_BLOCK > len(tri) else rows
+                part["v"] = tri[s:s + len(part)]
+                f.write(part.data)
 
 
 def _ply_data(elements, info: dict):
