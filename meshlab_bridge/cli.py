@@ -268,8 +268,10 @@ def _cmd_info_tiled(args) -> None:
                                     for s in range(0, finite, stream.CHUNK)), finite, scratch)
                 del xyz
                 rows = tiles.spacing_rows(src, client, scratch, args.tiles)
+        tri = (stream.mesh_tail(path) or (None,))[0]  # a mesh read in blocks
+        faces = None if tri is None or dropped else len(tri)  # dropping rows drops faces
         _print_info(path, meta, n, dropped, (lo, hi) if finite else None, rows,
-                    ranges.rows(), None)
+                    ranges.rows(), faces)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 

@@ -191,6 +191,80 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
     assert b"end_header" in whole.read_bytes()[:2000]
 
 
+def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool = False):
+    """``_ply_float32``'s sphere as a binary mesh: triangles over random
+    vertices (a quad among them when asked), and an ``edge`` element."""
+    vertex = np.array(PlyData.read(str(_ply_float32(path, n, order)))["vertex"].data)
+    g = np.random.default_rng(n + 1)
+    tri = np.r_[np.c_[np.arange(n - 2), np.arange(1, n - 1), np.arange(2, n)],
+                g.integers(0, n, (3 * n, 3))]
+    face = np.empty(len(tri), dtype=[("vertex_indices", "O")])
+    face["vertex_indices"] = [np.asarray(t, dtype="i4") for t in tri]
+    if quad:
+        face["vertex_indices"][7] = np.array([0, 1, 2, 3], dtype="i4")
+    els = [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]
+    if edges:
+        e = np.zeros(5, dtype=[("vertex1", "i4"), ("vertex2", "i4")])
+        e["vertex1"], e["vertex2"] = np.arange(5), np.arange(1, 6)
+        els.append(PlyElement.describe(e, "edge"))
+    PlyData(els, byte_order=order, comments=["scanner 7"]).write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "features", "simplify"])
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, order):
+    """A binary PLY of triangles is written block by block too: the vertices,
+    then the triangles (renumbered, those with a removed vertex left out, as
+    ``Cloud.subset`` does) and, where every vertex is kept, the other
+    elements; byte for byte the file written from the whole result, and the
+    input never read whole.  A mesh with a quad is read whole."""
+    from types import SimpleNamespace
+
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.apply import result_cloud
+    from pcprep.meshlab_bridge.convert import quality_ramp
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    spec = registry.get(name)
+    src = _mesh_float32(tmp_path / "in.ply", 2500, order)
+    cloud = formats.read_cloud(src)
+    params = {"ratio": 0.3} if name == "simplify" else {}
+    if name == "outliers":
+        params = {"method": "radius", "radius": 1.0}
+    fields = _result_fields(spec, spec.func(cloud.points, **params))
+    out = result_cloud(spec, cloud, SimpleNamespace(**fields))
+    if spec.kind == "scalar":
+        out = out.with_(colors=quality_ramp(out.quality))
+    assert out.faces is not None and 0 < len(out.faces)
+    removal = spec.kind in ("remove", "new_layer")
+    assert (len(out.faces) < len(cloud.faces)) == removal
+    whole, streamed = tmp_path / "whole.ply", tmp_path / "streamed.ply"
+    formats.write_cloud(out, whole)
+    with monkeypatch.context() as m:
+        m.setattr(stream, "read_cloud", lambda *a: pytest.fail("read whole"))
+        assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
+    assert streamed.read_bytes() == whole.read_bytes()
+    assert (b"element edge 5" in whole.read_bytes()[:2000]) == (not removal)
+    _mesh_float32(tmp_path / "quad.ply", 2500, order, quad=True)
+    assert stream._block_reader(tmp_path / "quad.ply") is None
+
+
+def test_mesh_face_out_of_range_is_refused_before_a_tiled_run(tmp_path):
+    from pcprep.meshlab_bridge.formats import stream
+
+    src = _mesh_float32(tmp_path / "in.ply", 300, "<", edges=False)
+    data = bytearray(src.read_bytes())
+    row = 13  # uchar count and three int32 per triangle: the last face's last index
+    data[-4:] = np.array([300], dtype="<i4").tobytes()
+    assert len(data) > row
+    src.write_bytes(bytes(data))
+    for check in (formats.read_cloud, lambda p: stream.check_fields(p, tmp_path / "o.ply")):
+        with pytest.raises(PointCloudError, match="does not exist .index 300, 300 vertices"):
+            check(src)
+
+
 @pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "simplify"])
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 def test_streamed_las_from_another_format_is_the_file_written_whole(tmp_path, monkeypatch,

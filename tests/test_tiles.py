@@ -517,6 +517,42 @@ def test_cli_tiled_ascii_ply_is_streamed_and_equals_one_piece(tmp_path, monkeypa
     assert (tmp_path / "tiled.ply").read_bytes() == one
 
 
+def test_cli_tiled_binary_mesh_is_streamed_and_equals_one_piece(tmp_path, monkeypatch):
+    # a binary PLY of triangles through the tiled command line: the vertices
+    # read and written in blocks, the triangles after them renumbered where
+    # outliers were removed, the same file as the one-piece run's
+    import plyfile
+
+    from pcprep.meshlab_bridge.cli import main
+    from pcprep.meshlab_bridge.formats import read_cloud, stream
+
+    pts = CLOUD[:6000]
+    rows = np.empty(len(pts), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"),
+                                     ("green", "u1"), ("blue", "u1")])
+    for c, v in zip("xyz", pts.T):
+        rows[c] = v
+    for c in ("red", "green", "blue"):
+        rows[c] = np.arange(len(pts)) % 251
+    i = np.arange(len(pts) - 2)
+    face = np.empty(len(i), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = np.c_[i, i + 1, i + 2]
+    src = tmp_path / "scan.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex"),
+                     plyfile.PlyElement.describe(face, "face")]).write(str(src))
+    assert main(["outliers", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
+    one = read_cloud(tmp_path / "one.ply")
+    assert 0 < len(pts) - len(one) < 100 and 0 < len(one.faces) < len(i)
+
+    def whole(*a, **k):
+        raise AssertionError("the tiled run read the whole file")
+
+    monkeypatch.setattr(stream, "read_cloud", whole)
+    monkeypatch.setattr(stream, "CHUNK", 1000)
+    assert main(["outliers", str(src), str(tmp_path / "tiled.ply"), "--tiles", "1500",
+                 "--workers", "2", "--quiet"]) == 0
+    assert (tmp_path / "tiled.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+
+
 def test_denoise_plan_replay_finds_the_cloud_decisions():
     # two tiles of 60 and 40 core rows and a fixed sequence of "is the RMS move
     # below tol" decisions; per decision each tile's sum of squared moves.  At
@@ -1184,12 +1220,18 @@ def test_cli_info_in_blocks_prints_what_the_whole_read_prints(tmp_path, capsys, 
     assert tiled == whole
 
 
-def test_cli_info_of_a_format_read_whole_is_the_whole_read(tmp_path, capsys):
+@pytest.mark.parametrize("ext", [".obj", ".ply"])
+def test_cli_info_of_a_mesh_is_the_whole_read(tmp_path, capsys, ext):
+    # an OBJ is read whole; a binary PLY of triangles in blocks, its faces
+    # counted from the face element
     from pcprep.meshlab_bridge.cloud import Cloud
     from pcprep.meshlab_bridge.convert import save_cloud
+    from pcprep.meshlab_bridge.formats import stream
 
-    src = tmp_path / "mesh.ply"
+    src = tmp_path / ("mesh" + ext)
     pts = _surface(400, seed=4, outliers=0)
     save_cloud(Cloud(points=pts, faces=np.array([[0, 1, 2], [2, 3, 4]])), str(src))
-    assert _info(capsys, str(src), "--tiles", "100", "--workers", "1") == _info(capsys,
-                                                                             str(src))
+    assert (stream._block_reader(str(src)) is None) == (ext == ".obj")
+    whole = _info(capsys, str(src))
+    assert "faces: 2" in whole
+    assert _info(capsys, str(src), "--tiles", "100", "--workers", "1") == whole

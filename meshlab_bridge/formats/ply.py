@@ -13,7 +13,10 @@ exactly (so an unchanged float32 column stays float32) and uses float64
 otherwise; new attributes are appended.  An ASCII PLY of vertices alone is
 parsed and written by NumPy in blocks, with plyfile's values and bytes
 (plyfile's loop over rows took 18 µs per row to read and 52 µs to write a
-10⁶-row file, NumPy 3.8 and 4.7 µs).
+10⁶-row file, NumPy 3.8 and 4.7 µs).  A binary mesh of triangles has its
+faces memory-mapped too, and written as records, again plyfile's bytes
+(its list rows cost about 4 µs a face each way).  Faces are read as
+triangles: a polygon becomes the fan of triangles from its first vertex.
 """
 
 from __future__ import annotations
@@ -406,23 +409,91 @@ def _write_binary(data, path: str) -> None:
     """The bytes ``data.write(path)`` gives for a binary PLY whose one list
     property is the triangles' ``vertex_indices`` (count ``uchar`` 3, indices
     ``int``): plyfile writes a list property row by row in Python (about
-    4 µs a face here), so the faces are written here as one record per
-    triangle, 2¹⁸ at a time; every other element as plyfile writes it."""
+    4 µs a face here), so the faces are written as records
+    (``triangle_records``); every other element as plyfile writes it."""
     order = data.byte_order
     with open(path, "wb") as f:
         f.write(data.header.encode("ascii") + b"\n")
         for el in data.elements:
-            if el.name != "face":
-                f.write(el.data.astype(el.dtype(order), copy=False).data)
-                continue
-            tri = el.data["vertex_indices"]
-            rows = np.empty(min(len(tri), TEXT_BLOCK),
-                            dtype=[("n", "u1"), ("v", order + "i4", (3,))])
-            rows["n"] = 3
-            for s in range(0, len(tri), TEXT_BLOCK):
-                part = rows[:len(tri) - s] if s + TEXT_BLOCK > len(tri) else rows
-                part["v"] = tri[s:s + len(part)]
-                f.write(part.data)
+            if el.name == "face":
+                tri = el.data["vertex_indices"]
+                for s in range(0, len(tri), TEXT_BLOCK):
+                    f.write(triangle_records(tri[s:s + TEXT_BLOCK], order))
+            else:
+                f.write(element_bytes(el, order))
+
+
+def triangle_records(tri: np.ndarray, order: str) -> memoryview:
+    """The rows plyfile writes for these (m, 3) triangles as the list
+    property ``vertex_indices`` (count ``uchar`` 3, indices ``int``) in byte
+    order ``order``."""
+    rows = np.empty(len(tri), dtype=[("n", "u1"), ("v", order + "i4", (3,))])
+    rows["n"] = 3
+    rows["v"] = tri
+    return rows.data
+
+
+def element_bytes(el, order: str) -> memoryview:
+    """The rows plyfile writes for an element without list properties."""
+    return el.data.astype(el.dtype(order), copy=False).data
+
+
+def triangle_element(count: int):
+    """plyfile's description of ``count`` triangles as ``ply.write`` writes
+    them (for a header: no rows are made)."""
+    from plyfile import PlyElement
+
+    shape = np.broadcast_to(np.zeros(1, dtype=[("vertex_indices", "i4", (3,))]), (count,))
+    return PlyElement.describe(shape, "face")
+
+
+def mesh_tail(ply, path: str):
+    """What a binary PLY (``load``) holds besides its vertices, for a write in
+    blocks: ``(triangles, others)``, the faces as the memory-mapped (f, 3)
+    index rows (None without faces, as ``read`` finds them) and the other
+    elements in file order.  None where the file is read whole: a face element
+    read row by row (some face is not a triangle) or another element with a
+    list property.  A face that refers to a vertex that does not exist is
+    refused as ``read`` refuses it."""
+    others = [el for el in ply.elements if el.name not in ("vertex", "face")]
+    if any(_has_list(el) for el in others):
+        return None
+    if "face" not in ply or ply["face"].count == 0:
+        return None, others
+    el = ply["face"]
+    key = next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
+               None)
+    if key is None:
+        return None, others
+    tri = el.data[key]
+    if tri.dtype == object:
+        return None
+    lo, hi, n = 0, -1, ply["vertex"].count
+    for s in range(0, len(tri), TEXT_BLOCK):
+        part = tri[s:s + TEXT_BLOCK]
+        lo, hi = min(lo, int(part.min())), max(hi, int(part.max()))
+    if lo < 0 or hi >= n:
+        raise PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
+                              f"does not exist (index {hi}, {n} vertices)")
+    return tri, others
+
+
+def kept_triangles(tri: np.ndarray, kept, size: int = TEXT_BLOCK):
+    """(m, 3) int64 blocks of the triangles ``tri`` after a removal that kept
+    the rows ``kept`` (increasing indices; None: every row): each triangle
+    whose three vertices are kept, renumbered to the kept rows' order, as
+    ``Cloud.subset`` renumbers them, found by binary search in ``kept`` (no
+    map of the input's length)."""
+    for s in range(0, len(tri), size):
+        part = np.asarray(tri[s:s + size], dtype=np.int64)
+        if kept is None:
+            yield part
+            continue
+        if len(kept) == 0:
+            return
+        pos = np.searchsorted(kept, part)
+        found = np.asarray(kept[np.minimum(pos, len(kept) - 1)]) == part
+        yield pos[found.all(axis=1)]
 
 
 def _ply_data(elements, info: dict):
@@ -494,15 +565,16 @@ def wider_type(name: str, a: np.dtype, b: np.dtype, info: dict) -> np.dtype:
     return np.result_type(a, b)
 
 
-def header(types: dict, count: int, info: dict) -> bytes:
+def header(types: dict, count: int, info: dict, elements=()) -> bytes:
     """The header of a PLY of ``count`` vertices with the properties ``types``
-    (name → type, in file order), the input's comments, encoding and byte
-    order, through plyfile; the rows follow it as ``vertex_rows(...).tobytes()``
-    in that byte order (``row_type``), or as ``text_rows`` for ASCII."""
+    (name → type, in file order), then ``elements`` (plyfile's), the input's
+    comments, encoding and byte order, through plyfile; the rows follow it as
+    ``vertex_rows(...).tobytes()`` in that byte order (``row_type``), or as
+    ``text_rows`` for ASCII."""
     from plyfile import PlyElement
 
     shape = np.broadcast_to(np.zeros(1, dtype=list(types.items())), (count,))
-    ply = _ply_data([PlyElement.describe(shape, "vertex")], info)
+    ply = _ply_data([PlyElement.describe(shape, "vertex"), *elements], info)
     return ply.header.encode("ascii") + b"\n"
 
 

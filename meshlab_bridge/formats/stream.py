@@ -10,13 +10,13 @@ through libe57's reader with block-sized buffers; the other formats are read
 whole.  ``write_streamed`` writes a
 filter's per-row results (arrays or memory maps, in input order) with every
 input attribute kept, block by block where the input is LAS/LAZ, XYZ, E57,
-PCD or a PLY of vertices alone: to LAS/LAZ (laspy's writer;
+PCD, a PLY of vertices alone or a binary PLY of triangles: to LAS/LAZ (laspy's writer;
 from LAS/LAZ under the input's header, new results as extra dimensions, a
 removal copying the kept rows' records as they are; from another format under
 the header ``las.write`` gives the whole result, its scale and offset from a
 first pass over the written rows' positions), to PLY (plyfile's header, then
-the rows, binary or ASCII as the input; the same bytes ``ply.write`` gives the
-whole result), to XYZ,
+the rows, binary or ASCII as the input, then a mesh's triangles and other
+elements; the same bytes ``ply.write`` gives the whole result), to XYZ,
 to binary PCD and to E57 (the columns gathered on disk, then pye57 writes the
 scan from memory maps of them).  The inputs read whole go through
 ``read_cloud``/``write_cloud`` with the cloud in memory.  Every write is
@@ -212,7 +212,8 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
     n = point_count(src) if n is None else n
     keep = _kept(spec, fields, n)
     if to == ".ply":
-        return _write_ply(lambda: _results(spec, blocks(size), fields, keep, dst), dst)
+        return _write_ply(lambda: _results(spec, blocks(size), fields, keep, dst), dst,
+                          mesh_tail(src), keep)
     if to == ".xyz":
         return _write_xyz(_results(spec, blocks(size), fields, keep, dst), dst)
     if to == ".e57":
@@ -300,8 +301,9 @@ class _Kept:
 
 def _block_reader(src: str):
     """``size -> iterator of (start, Cloud)`` over ``src``'s rows in blocks,
-    every attribute kept, for LAS/LAZ, XYZ, E57, PCD and PLY holding vertices
-    alone; None for the formats read whole."""
+    every attribute kept, for LAS/LAZ, XYZ, E57, PCD, PLY holding vertices
+    alone and binary PLY of triangles (the vertices; the triangles are
+    ``mesh_tail``'s); None for the formats read whole."""
     ext = _ext(src)
     if ext in _STREAMED:
         import laspy
@@ -339,8 +341,8 @@ def _block_reader(src: str):
         return lambda size: ((s, ply.vertex_cloud(rows, head[0], src, head[1]))
                              for s, rows in ply.ascii_vertex_blocks(src, size, head))
     ply_data = _ply_mmap(src) if ext == ".ply" else None
-    if ply_data is None or [el.name for el in ply_data.elements] != ["vertex"]:
-        return None  # faces and other elements that index every vertex, or list properties
+    if ply_data is None or ply.mesh_tail(ply_data, src) is None:
+        return None  # faces that are not all triangles, or lists in another element
 
     def ply_blocks(size):
         v = ply_data["vertex"]
@@ -422,12 +424,24 @@ def _write_pcd(outputs, dst: str, count: int) -> int:
     return written
 
 
-def _write_ply(outputs, dst: str) -> int:
+def mesh_tail(src: str):
+    """``ply.mesh_tail`` of a binary PLY read in blocks; None for other files."""
+    from . import ply
+
+    ply_data = _ply_mmap(src) if _ext(src) == ".ply" else None
+    return None if ply_data is None else ply.mesh_tail(ply_data, src)
+
+
+def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
     """PLY block by block, binary or ASCII as the input, the same file
     ``ply.write`` makes of the whole result.  A column keeps the input's type only where every row's value
     fits it, so a first pass over the blocks settles each column's type (and
     whether an alpha is written) and the row count for the header; the second
-    writes the rows.  ``outputs()`` gives the blocks' output clouds afresh."""
+    writes the rows.  ``outputs()`` gives the blocks' output clouds afresh.
+    ``tail``: a binary mesh's triangles and other elements (``mesh_tail``),
+    written after the vertices as the whole write does: the triangles whose
+    vertices are all kept (``keep``), renumbered, counted in a first pass
+    over them, and the other elements where every vertex is kept."""
     from . import ply
 
     types: dict = {}
@@ -439,6 +453,12 @@ def _write_ply(outputs, dst: str) -> int:
         for n, v in cols.items():
             types[n] = ply.wider_type(n, types[n], v.dtype, info) if n in types else v.dtype
         count += len(out)
+    tri, others = (None, []) if tail is None else tail
+    kept = None if keep is None else keep.idx
+    faces = 0 if tri is None else sum(len(b) for b in ply.kept_triangles(tri, kept))
+    elements = [ply.triangle_element(faces)] if faces else []
+    if count != info.get("n_vertices", -1):  # edges etc. index the original rows
+        others = []
     written = 0
     with _temporary(dst) as tmp, open(tmp, "wb") as f:
         rows = None
@@ -446,13 +466,19 @@ def _write_ply(outputs, dst: str) -> int:
             cols = ply.vertex_columns(out, alpha=alpha)
             if rows is None:
                 layout = {n: types[n] for n in cols}
-                f.write(ply.header(layout, count, info))
+                f.write(ply.header(layout, count, info, elements + others))
                 rows = ply.row_type(layout, info)
             if info.get("text"):
                 f.write(ply.text_rows(cols, layout))
             else:
                 f.write(ply.vertex_rows(cols, {n: rows[n] for n in cols}).tobytes())
             written += len(out)
+        order = info.get("byte_order", "<")
+        if faces:
+            for block in ply.kept_triangles(tri, kept):
+                f.write(ply.triangle_records(block, order))
+        for el in others:
+            f.write(ply.element_bytes(el, order))
     return written
 
 
