@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._kernels import run_chunks, tree_workers
+from ._kernels import run_chunks
 from ._validation import PointCloudError, as_normals, as_points, check_spread
-from .neighbors import SPACING_K, build_tree, centered, spacing_from_rows
+from .neighbors import SPACING_K, build_tree, centered, query_settled, spacing_from_rows
 
 #: points per chunk of the neighbour passes (small blocks stay in the allocator's
 #: heap and in cache)
@@ -218,8 +218,7 @@ def _prepare(points, normals, k_max: int, func: str, tile=None):
     rows = np.zeros(len(x))
     kth = np.zeros(len(x))
     for s in range(0, len(x), QUERY_CHUNK):  # chunked: float64 distances stay small
-        dist, ii = tree.query(x[s:s + QUERY_CHUNK], k=k, workers=tree_workers())
-        dist, ii = dist.reshape(len(ii), k), ii.reshape(len(ii), k)
+        dist, ii = query_settled(tree, x[s:s + QUERY_CHUNK], k)
         idx[s:s + QUERY_CHUNK] = ii
         kth[s:s + QUERY_CHUNK] = dist[:, -1]
         if tile is None:

@@ -34,6 +34,61 @@ def build_tree(points: np.ndarray) -> cKDTree:
     return cKDTree(points, leafsize=16, balanced_tree=False, compact_nodes=False)
 
 
+def query_settled(tree: cKDTree, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``tree.query(q, k)`` as (m, k) arrays, with equal distances in a fixed order.
+
+    Neighbours at the same distance from a query come in the k-d tree's order,
+    which depends on the rows the tree holds: a tile of a cloud and the whole
+    cloud can rank them differently, or keep a different one of them as the
+    k-th neighbour.  Every neighbourhood and every scale (a prefix of the list)
+    would then differ between a tiled and a one-piece run wherever positions
+    make exact ties, as on a regular grid or on quantised coordinates (on a
+    1000 × 1000 grid of float32 positions, 40 rows had a tie at a scale's
+    boundary, and since the features' medians moved, every score of the
+    sharp-feature detector differed).  So equal distances are ordered by the
+    neighbour's coordinates (x, then y, then z; then by row, for coincident
+    points, which the filters refuse), which a tile and the whole cloud share.
+    One more neighbour than asked is queried to see a tie across the k-th
+    place; such rows are queried again, with more neighbours, until the run
+    of equal distances ends inside the list.  Rows without ties cost one
+    comparison of their distances."""
+    n = tree.n
+    kq = min(k + 1, n)
+    dist, idx = tree.query(q, k=kq, workers=_kernels.tree_workers())
+    dist, idx = dist.reshape(len(q), kq), idx.reshape(len(q), kq)
+    if kq > 1:
+        tied = np.flatnonzero((dist[:, 1:] == dist[:, :-1]).any(axis=1))
+        for s in range(0, len(tied), TIE_ROWS):  # bounded: on a grid most rows tie
+            _settle_ties(tree, q, dist, idx, tied[s:s + TIE_ROWS], k)
+    return dist[:, :k], idx[:, :k]
+
+
+#: tied rows settled at once (their neighbours' coordinates: 24 B per neighbour)
+TIE_ROWS = 1 << 14
+
+
+def _settle_ties(tree: cKDTree, q, dist, idx, rows: np.ndarray, k: int) -> None:
+    """``query_settled``'s tie order, in place, on the listed rows of (m, k + 1) lists."""
+    kq = dist.shape[1]
+    across = dist[rows, k - 1] == dist[rows, kq - 1] if kq > k else np.zeros(len(rows), bool)
+    groups = [(rows[~across], dist[rows[~across]], idx[rows[~across]])]
+    wide, kw = rows[across], kq
+    while len(wide):  # the run of equal distances reaches the list's end: query more
+        kw = min(2 * kw, tree.n)
+        d, i = tree.query(q[wide], k=kw, workers=_kernels.tree_workers())
+        d, i = d.reshape(len(wide), kw), i.reshape(len(wide), kw)
+        done = (d[:, k - 1] < d[:, kw - 1]) | (kw == tree.n)
+        groups.append((wide[done], d[done], i[done]))
+        wide = wide[~done]
+    for at, d, i in groups:
+        if not len(at):
+            continue
+        p = tree.data[i]
+        order = np.lexsort((i, p[..., 2], p[..., 1], p[..., 0], d), axis=-1)[:, :k]
+        dist[at, :k] = np.take_along_axis(d, order, axis=1)
+        idx[at, :k] = np.take_along_axis(i, order, axis=1)
+
+
 def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
         include_self: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """k nearest neighbours of every query point.
@@ -54,7 +109,7 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
     Returns
     -------
     dist : (m, k) float
-        Distances, ascending.
+        Distances, ascending; equal ones in ``query_settled``'s order.
     idx : (m, k) int64
         Indices into ``points``.
     """
@@ -75,13 +130,11 @@ def knn(points: np.ndarray, k: int, *, tree: cKDTree | None = None, query=None,
                   (slice(s, s + step) for s in range(0, len(q), step)))
         with progress.step(f"{k}-NN query", len(q)) as advance:
             for rows in slices:
-                d, i = tree.query(q[rows], k=kk, workers=_kernels.tree_workers())
-                dist[rows], idx[rows] = d.reshape(-1, kk), i.reshape(-1, kk)
-                advance(i.size // kk)
+                d, i = query_settled(tree, q[rows], kk)
+                dist[rows], idx[rows] = d, i
+                advance(len(i))
     else:
-        dist, idx = tree.query(q, k=kk, workers=_kernels.tree_workers())
-    if kk == 1:
-        dist, idx = dist.reshape(-1, 1), idx.reshape(-1, 1)
+        dist, idx = query_settled(tree, q, kk)
     if not include_self and query is None:
         dist, idx = dist[:, 1:], idx[:, 1:]
     return np.ascontiguousarray(dist), np.ascontiguousarray(idx.astype(np.int64, copy=False))

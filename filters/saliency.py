@@ -24,6 +24,7 @@ from ._params import Param, preset_param, validate_params
 from ._validation import PointCloudError, as_normals, as_points, check_spread
 from .lasso_batched import lasso_batched
 from .neighbors import (SPACING_K, build_tree, centered, leaf_chunks, orient_normals_mst,
+                        query_settled,
                         spacing_from_rows, tile_exact)
 
 log = logging.getLogger("pcprep")
@@ -170,8 +171,7 @@ def neighbourhoods(points: np.ndarray, radius_h: float, k_max: int, tree=None,
     kth = np.zeros(n)
     rows = np.zeros(n)
     for at in leaf_chunks(tree, 4 * CHUNK):
-        d, j = tree.query(points[at], k=k, workers=_kernels.tree_workers())
-        d, j = d.reshape(len(at), k), j.reshape(len(at), k)
+        d, j = query_settled(tree, points[at], k)
         idx[at] = j
         dist[at] = d
         kth[at] = d[:, -1]

@@ -23,7 +23,7 @@ from . import _kernels, sparse
 from ._params import Param, preset_param, validate_params
 from ._validation import (InvalidParameterError, PointCloudError, as_normals, as_points,
                           check_seed, check_spread)
-from .neighbors import (CHUNK, build_tree, knn, leaf_chunks, nonzero_rows,
+from .neighbors import (CHUNK, build_tree, knn, leaf_chunks, nonzero_rows, query_settled,
                         pairwise_sum, spacing_from_rows, weighted_pca)
 
 log = logging.getLogger("pcprep")
@@ -353,8 +353,7 @@ def _knn32(P, k, tree):
     gd = np.zeros((n, k), dtype=np.float32)
     gi = np.zeros((n, k), dtype=np.int32)
     for at in leaf_chunks(tree, CHUNK):
-        d, i = tree.query(P[at], k=k, workers=_kernels.tree_workers())
-        gd[at], gi[at] = d.reshape(len(at), k), i.reshape(len(at), k)
+        gd[at], gi[at] = query_settled(tree, P[at], k)
     return gd, gi
 
 

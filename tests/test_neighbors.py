@@ -166,6 +166,49 @@ def test_knn_in_leaf_order_equals_one_query_in_input_order(monkeypatch):
     np.testing.assert_array_equal(i, want_i[:, 1:])
 
 
+def _settled_reference(p, q_rows, k):
+    """Each query row's k nearest, ranked by exact squared distance (integer
+    coordinates), then x, y, z, then row."""
+    out = []
+    for r in q_rows:
+        d2 = np.square(p - p[r]).sum(axis=1)
+        order = np.lexsort((np.arange(len(p)), p[:, 2], p[:, 1], p[:, 0], d2))
+        out.append(order[:k])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("k", [1, 3, 4, 5, 7, 13, 19, 27])
+def test_equal_distances_come_in_the_same_order_in_any_tree(monkeypatch, k):
+    """On an integer grid nearly every neighbour is tied with others.  The
+    settled query ranks them by distance, then by position, whatever rows the
+    tree holds and in whatever order: the whole grid, the grid shuffled, and a
+    block of it around the queries (a tile) give the same neighbours, and
+    those of the exact reference, also where a tie spans the k-th place."""
+    from pcprep.filters import neighbors
+    from pcprep.filters.neighbors import build_tree, query_settled
+
+    if k == 13:  # tied rows settled a few at a time
+        monkeypatch.setattr(neighbors, "TIE_ROWS", 4)
+    g = np.random.default_rng(k)
+    u = np.arange(12, dtype=float)
+    p = np.stack(np.meshgrid(u, u, u[:6], indexing="ij"), axis=-1).reshape(-1, 3)
+    rows = np.flatnonzero(np.all(np.abs(p - [6.0, 6.0, 3.0]) <= 1.0, axis=1))
+    want = _settled_reference(p, rows, k)
+    d, i = query_settled(build_tree(p), p[rows], k)
+    np.testing.assert_array_equal(i, want)
+    np.testing.assert_array_equal(d, np.sqrt(np.square(p[want] - p[rows][:, None]).sum(-1)))
+    perm = g.permutation(len(p))
+    _, i2 = query_settled(build_tree(p[perm]), p[rows], k)
+    np.testing.assert_array_equal(perm[i2], want)
+    block = np.flatnonzero(np.all(np.abs(p - [6.0, 6.0, 3.0]) <= 4.5, axis=1))[::-1]
+    _, i3 = query_settled(build_tree(p[block]), p[rows], k)
+    np.testing.assert_array_equal(block[i3], want)
+    # the plain query differs: the tie order is the tree's
+    if k == 19:
+        _, raw = build_tree(p[perm]).query(p[rows], k=k)
+        assert not np.array_equal(perm[raw], want)
+
+
 def test_spacing_rows_in_leaf_slices_equal_the_plain_query(monkeypatch):
     """The spacing's row means, queried slice by slice in leaf order, are the
     plain 7-NN query's row means to the bit (so h is)."""
