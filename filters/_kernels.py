@@ -782,6 +782,33 @@ if HAVE_NUMBA:
                 xyz[p, a] = pts[i, a]
             fill[c] = p + 1
 
+    @_jit(inline="always")
+    def _tie_before(d1, i1, d2, i2, data):
+        """(d1, neighbour i1) ranks before (d2, i2): by distance, then the
+        neighbour's x, y, z, then its row."""
+        if d1 != d2:
+            return d1 < d2
+        for c in range(3):
+            if data[i1, c] != data[i2, c]:
+                return data[i1, c] < data[i2, c]
+        return i1 < i2
+
+    @_jit()
+    def settle_ties(dist, idx, data):
+        """Every row of the neighbour lists (dist, idx), sorted by distance
+        already, reordered in place by (distance, the neighbour's x, y, z,
+        row) (``neighbors.query_settled``).  An insertion sort: entries move
+        only within runs of equal distances, so a row costs its length plus
+        the square of its runs' lengths."""
+        for r in range(dist.shape[0]):
+            for j in range(1, dist.shape[1]):
+                dj, ij = dist[r, j], idx[r, j]
+                t = j - 1
+                while t >= 0 and _tie_before(dj, ij, dist[r, t], idx[r, t], data):
+                    dist[r, t + 1], idx[r, t + 1] = dist[r, t], idx[r, t]
+                    t -= 1
+                dist[r, t + 1], idx[r, t + 1] = dj, ij
+
     @_jit()
     def merge_sorted(a, b, out):
         """out ← the sorted union of the sorted arrays a and b (a's element

@@ -177,16 +177,19 @@ def _settled_reference(p, q_rows, k):
     return np.array(out)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("k", [1, 3, 4, 5, 7, 13, 19, 27])
-def test_equal_distances_come_in_the_same_order_in_any_tree(monkeypatch, k):
+def test_equal_distances_come_in_the_same_order_in_any_tree(monkeypatch, k, compiled):
     """On an integer grid nearly every neighbour is tied with others.  The
     settled query ranks them by distance, then by position, whatever rows the
     tree holds and in whatever order: the whole grid, the grid shuffled, and a
     block of it around the queries (a tile) give the same neighbours, and
-    those of the exact reference, also where a tie spans the k-th place."""
-    from pcprep.filters import neighbors
+    those of the exact reference, also where a tie spans the k-th place; the
+    compiled insertion sort and NumPy's lexsort alike."""
+    from pcprep.filters import _kernels, neighbors
     from pcprep.filters.neighbors import build_tree, query_settled
 
+    monkeypatch.setattr(_kernels, "ENABLED", compiled and _kernels.HAVE_NUMBA)
     if k == 13:  # tied rows settled a few at a time
         monkeypatch.setattr(neighbors, "TIE_ROWS", 4)
     g = np.random.default_rng(k)
