@@ -518,25 +518,23 @@ def test_cli_tiled_features_ply(tmp_path):
     assert np.array_equal(a.points, b.points)
 
 
-def test_cli_tiled_ascii_ply_is_streamed_and_equals_one_piece(tmp_path, monkeypatch):
-    # an ASCII PLY (float64 positions, a colour and a scanner's column) through
-    # the tiled command line: read and written in blocks, never whole, and the
-    # same ASCII file as the one-piece run's
-    import plyfile
-
-    from pcprep.meshlab_bridge.cli import main
-    from pcprep.meshlab_bridge.formats import stream
-
-    pts = CLOUD[:6000]
-    rows = np.empty(len(pts), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u1"),
-                                     ("green", "u1"), ("blue", "u1"), ("gps_time", "f8")])
+def _scan_vertices(pts, position: str) -> np.ndarray:
+    """PLY vertex rows of ``pts``: positions of type ``position`` and a colour."""
+    rows = np.empty(len(pts), dtype=[("x", position), ("y", position), ("z", position),
+                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
     for c, v in zip("xyz", pts.T):
         rows[c] = v
     for c in ("red", "green", "blue"):
         rows[c] = np.arange(len(pts)) % 251
-    rows["gps_time"] = 1e9 + np.arange(len(pts)) / 7.0
-    src = tmp_path / "scan.ply"
-    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")], text=True).write(str(src))
+    return rows
+
+
+def _outliers_one_and_tiled(tmp_path, monkeypatch, src):
+    """``pcprep outliers`` on ``src`` in one piece, then tiled on 2 workers in
+    blocks of 1000 rows with the whole read made to fail: the two files' bytes."""
+    from pcprep.meshlab_bridge.cli import main
+    from pcprep.meshlab_bridge.formats import stream
+
     assert main(["outliers", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
 
     def whole(*a, **k):
@@ -546,9 +544,24 @@ def test_cli_tiled_ascii_ply_is_streamed_and_equals_one_piece(tmp_path, monkeypa
     monkeypatch.setattr(stream, "CHUNK", 1000)
     assert main(["outliers", str(src), str(tmp_path / "tiled.ply"), "--tiles", "1500",
                  "--workers", "2", "--quiet"]) == 0
-    one = (tmp_path / "one.ply").read_bytes()
+    return (tmp_path / "one.ply").read_bytes(), (tmp_path / "tiled.ply").read_bytes()
+
+
+def test_cli_tiled_ascii_ply_is_streamed_and_equals_one_piece(tmp_path, monkeypatch):
+    # an ASCII PLY (float64 positions, a colour and a scanner's column) through
+    # the tiled command line: read and written in blocks, never whole, and the
+    # same ASCII file as the one-piece run's
+    import plyfile
+    from numpy.lib.recfunctions import append_fields
+
+    pts = CLOUD[:6000]
+    rows = append_fields(_scan_vertices(pts, "f8"), "gps_time",
+                         1e9 + np.arange(len(pts)) / 7.0, usemask=False)
+    src = tmp_path / "scan.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex")], text=True).write(str(src))
+    one, tiled = _outliers_one_and_tiled(tmp_path, monkeypatch, src)
     assert b"format ascii" in one[:30] and one.count(b"\n") < rows.size + 20
-    assert (tmp_path / "tiled.ply").read_bytes() == one
+    assert tiled == one
 
 
 def test_cli_tiled_binary_mesh_is_streamed_and_equals_one_piece(tmp_path, monkeypatch):
@@ -557,34 +570,19 @@ def test_cli_tiled_binary_mesh_is_streamed_and_equals_one_piece(tmp_path, monkey
     # outliers were removed, the same file as the one-piece run's
     import plyfile
 
-    from pcprep.meshlab_bridge.cli import main
-    from pcprep.meshlab_bridge.formats import read_cloud, stream
+    from pcprep.meshlab_bridge.formats import read_cloud
 
     pts = CLOUD[:6000]
-    rows = np.empty(len(pts), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"),
-                                     ("green", "u1"), ("blue", "u1")])
-    for c, v in zip("xyz", pts.T):
-        rows[c] = v
-    for c in ("red", "green", "blue"):
-        rows[c] = np.arange(len(pts)) % 251
     i = np.arange(len(pts) - 2)
     face = np.empty(len(i), dtype=[("vertex_indices", "i4", (3,))])
     face["vertex_indices"] = np.c_[i, i + 1, i + 2]
     src = tmp_path / "scan.ply"
-    plyfile.PlyData([plyfile.PlyElement.describe(rows, "vertex"),
+    plyfile.PlyData([plyfile.PlyElement.describe(_scan_vertices(pts, "f4"), "vertex"),
                      plyfile.PlyElement.describe(face, "face")]).write(str(src))
-    assert main(["outliers", str(src), str(tmp_path / "one.ply"), "--quiet"]) == 0
-    one = read_cloud(tmp_path / "one.ply")
-    assert 0 < len(pts) - len(one) < 100 and 0 < len(one.faces) < len(i)
-
-    def whole(*a, **k):
-        raise AssertionError("the tiled run read the whole file")
-
-    monkeypatch.setattr(stream, "read_cloud", whole)
-    monkeypatch.setattr(stream, "CHUNK", 1000)
-    assert main(["outliers", str(src), str(tmp_path / "tiled.ply"), "--tiles", "1500",
-                 "--workers", "2", "--quiet"]) == 0
-    assert (tmp_path / "tiled.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+    one, tiled = _outliers_one_and_tiled(tmp_path, monkeypatch, src)
+    kept = read_cloud(tmp_path / "one.ply")
+    assert 0 < len(pts) - len(kept) < 100 and 0 < len(kept.faces) < len(i)
+    assert tiled == one
 
 
 def test_denoise_plan_replay_finds_the_cloud_decisions():

@@ -183,7 +183,7 @@ def ascii_header(path: str):
     for other elements or list properties (faces index every vertex, so such
     a file is read whole), and for a header plyfile would not parse (the whole
     read then names the fault)."""
-    from plyfile import PlyData, PlyListProperty, PlyParseError
+    from plyfile import PlyData, PlyParseError
 
     lines, count, offset = [], None, 0
     with open(path, "rb") as f:
@@ -211,8 +211,7 @@ def ascii_header(path: str):
         ply = PlyData.read(io.BytesIO(b"".join(lines)))
     except (PlyParseError, ValueError):
         return None
-    if (count is None or count < 0 or not ply.text
-            or any(isinstance(p, PlyListProperty) for p in ply["vertex"].properties)):
+    if count is None or count < 0 or not ply.text or _has_list(ply["vertex"]):
         return None
     return ply, count, offset
 
@@ -314,15 +313,24 @@ def _faces(ply, n: int, path: str) -> np.ndarray | None:
     if "face" not in ply or ply["face"].count == 0:
         return None
     el = ply["face"]
-    key = next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
-               None)
+    key = _face_key(el)
     if key is None:
         return None
     faces = fan_triangles(el.data[key])
     if len(faces) and (faces.min() < 0 or faces.max() >= n):
-        raise PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
-                              f"does not exist (index {int(faces.max())}, {n} vertices)")
+        raise _missing_vertex(path, int(faces.max()), n)
     return faces
+
+
+def _face_key(el) -> str | None:
+    """The face element's vertex-index list, by either of its usual names."""
+    return next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
+                None)
+
+
+def _missing_vertex(path: str, index: int, n: int) -> PointCloudError:
+    return PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
+                           f"does not exist (index {index}, {n} vertices)")
 
 
 def fan_triangles(polygons) -> np.ndarray:
@@ -461,8 +469,7 @@ def mesh_tail(ply, path: str):
     if "face" not in ply or ply["face"].count == 0:
         return None, others
     el = ply["face"]
-    key = next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
-               None)
+    key = _face_key(el)
     if key is None:
         return None, others
     tri = el.data[key]
@@ -473,8 +480,7 @@ def mesh_tail(ply, path: str):
         part = tri[s:s + TEXT_BLOCK]
         lo, hi = min(lo, int(part.min())), max(hi, int(part.max()))
     if lo < 0 or hi >= n:
-        raise PointCloudError(f"cannot read {path!r}: a face refers to a vertex that "
-                              f"does not exist (index {hi}, {n} vertices)")
+        raise _missing_vertex(path, hi, n)
     return tri, others
 
 
