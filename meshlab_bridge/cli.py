@@ -72,6 +72,9 @@ def _add_filter_command(sub, spec) -> None:
     p.add_argument("--drop-nonfinite", action="store_true",
                    help="drop rows whose coordinates hold NaN or Inf (their indices are "
                         "reported) instead of refusing the file")
+    p.add_argument("--drop-faces", action="store_true",
+                   help="write the vertices without the input's faces (needed to write a "
+                        "mesh as LAS, LAZ, PCD, XYZ or E57, which store points alone)")
     p.add_argument("--save-mlx", default=None, metavar="PATH",
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
@@ -157,6 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also write the pipeline that ran, as .mlx")
     run.add_argument("--drop-nonfinite", action="store_true",
                      help="drop rows whose coordinates hold NaN or Inf (indices reported)")
+    run.add_argument("--drop-faces", action="store_true",
+                     help="write the last layer's vertices without its faces")
     run.add_argument("--quiet", action="store_true", help="no progress messages")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
@@ -338,12 +343,12 @@ def _cmd_filter(args) -> int:
             _filter_file_tiled(spec, params, src, dst, args)
         return 0
     if len(jobs) == 1 and args.out_dir is None:
-        _filter_file(spec, params, *jobs[0], args.drop_nonfinite)
+        _filter_file(spec, params, *jobs[0], args)
         return 0
     failed = []
     for src, dst in jobs:
         try:
-            _filter_file(spec, params, src, dst, args.drop_nonfinite)
+            _filter_file(spec, params, src, dst, args)
         except (PointCloudError, InvalidParameterError, MissingAttributeError, OSError) as exc:
             log.error("%s: failed: %s", src, exc)
             failed.append((src, str(exc)))
@@ -353,13 +358,15 @@ def _cmd_filter(args) -> int:
     return 1 if failed else 0
 
 
-def _filter_file(spec, params: dict, src: str, dst: str, drop_nonfinite: bool) -> None:
+def _filter_file(spec, params: dict, src: str, dst: str, args) -> None:
     from . import formats
     from .apply import result_cloud, run_on_cloud
 
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)  # before any work
-    cloud = load_cloud(src, nonfinite="drop" if drop_nonfinite else "error")
+    cloud = load_cloud(src, nonfinite="drop" if args.drop_nonfinite else "error")
+    if args.drop_faces:
+        cloud = cloud.with_(faces=None)
     dropped = cloud.meta.get("dropped_rows", ())
     if len(dropped):
         log.warning("%s: dropped %d row(s) with non-finite coordinates: %s", src,
@@ -409,7 +416,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
                                     "with tiles")
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)
-    stream.check_fields(src, dst)  # the input's fields, before any work
+    stream.check_fields(src, dst, drop_faces=args.drop_faces)  # before any work
     tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
     scratch = _scratch_folder(args.scratch, "pcprep-tiles-")
     try:
@@ -430,7 +437,8 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
             res = tiles.run_tiled(spec.name, source=source, normals=normals, params=params,
                                   tiles=args.tiles, client=client, scratch=scratch,
                                   worker_io={"on": True, "off": False}.get(args.worker_io))
-        written = stream.write_streamed(spec, src, dst, res.fields, n=n)
+        written = stream.write_streamed(spec, src, dst, res.fields, n=n,
+                                        drop_faces=args.drop_faces)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
                  written, dst, res.stats["tiles"], res.stats["halo_max"])
     finally:
@@ -447,10 +455,13 @@ def _cmd_run(args) -> None:
     if args.save_mlx:
         formats.check_destination(args.save_mlx + ".ply")  # its folder is writable
     cloud = load_cloud(args.input, nonfinite="drop" if args.drop_nonfinite else "error")
-    formats.check_cloud(cloud, args.output)
+    # faces checked on the result only: the script may remove or make them
+    formats.check_cloud(cloud.with_(faces=None), args.output)
     ms.add_cloud(cloud)
     ms.apply_filter_script()
     out = ms.current_cloud()
+    if args.drop_faces:
+        out = out.with_(faces=None)
     save_cloud(out, args.output)
     if args.save_mlx:
         ms.save_filter_script(args.save_mlx)

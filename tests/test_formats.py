@@ -1066,6 +1066,46 @@ def test_formats_that_would_lose_input_attributes_are_refused(tmp_path, capsys, 
         assert sorted(os.listdir(tmp_path)) == ["in.ply"]
 
 
+@pytest.mark.parametrize("text", [False, True])
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "200", "--workers", "1"]])
+def test_a_mesh_is_written_as_points_alone_only_when_asked(tmp_path, capsys, monkeypatch,
+                                                           tiled, text):
+    # LAS and PCD store points alone: a mesh's faces are not lost without a
+    # word but refused before any work (a binary mesh tiled: from its face
+    # count, the vertices being read in blocks); --drop-faces writes the
+    # vertices, with every attribute, as the run that keeps the faces does
+    from pcprep.meshlab_bridge import tiles
+
+    src = tmp_path / "in.ply"
+    _ply_with_properties(src, text=text, n=600)
+    with monkeypatch.context() as m:
+        m.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
+        for ext in (".las", ".pcd"):
+            assert main(["outliers", str(src), str(tmp_path / f"out{ext}"), "--quiet",
+                         *tiled]) == 1
+            err = capsys.readouterr().err
+            assert "598 faces" in err and "--drop-faces" in err
+    assert sorted(os.listdir(tmp_path)) == ["in.ply"]
+    runs = {"mesh.ply": [], "points.ply": ["--drop-faces"], "points.las": ["--drop-faces"]}
+    out = {}
+    for name, flag in runs.items():
+        assert main(["outliers", str(src), str(tmp_path / name), "--quiet", *flag,
+                     *tiled]) == 0
+        out[name] = formats.read_cloud(tmp_path / name)
+    mesh = out["mesh.ply"]
+    assert 0 < len(mesh.faces) <= 598
+    for name in ("points.ply", "points.las"):
+        assert out[name].faces is None
+        assert np.allclose(out[name].points, mesh.points, rtol=0, atol=1e-6)
+        for k in ("intensity", "classification"):
+            assert np.array_equal(out[name].attributes[k], mesh.attributes[k]), (name, k)
+    plain = formats.read_cloud(src).with_(attributes={})
+    with pytest.raises(PointCloudError, match="598 faces"):
+        formats.write_cloud(plain, tmp_path / "api.xyz")
+    formats.write_cloud(plain.with_(faces=None), tmp_path / "api.xyz")
+    assert len(formats.read_cloud(tmp_path / "api.xyz")) == 600
+
+
 def test_a_tiled_run_refuses_an_input_it_could_not_write_from(tmp_path, capsys, monkeypatch):
     # positions alone in a .npy are not a cloud read_cloud reads: the tiled
     # command line refuses it before any work, not at the write after the run

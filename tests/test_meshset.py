@@ -159,3 +159,33 @@ def test_cli_run_keeps_attributes_and_saves_the_pipeline(part, tmp_path):
     assert got.attributes["tag"].dtype == np.uint16
     assert len(np.unique(got.attributes["tag"])) == len(got)
     assert mlx.read_text().count("<filter") == 3
+
+
+def test_a_mesh_layer_is_saved_as_points_alone_only_when_asked(part, tmp_path, capsys):
+    # a script may make or remove faces, so pcprep run checks the faces of the
+    # result, not the input's; MeshSet's save refuses like the CLI, and
+    # MeshLab's Remove All Faces is how a MeshSet user asks for points alone
+    i = np.arange(1, len(part.points) - 1)
+    fan = np.c_[np.zeros_like(i), i, i + 1]
+    src = tmp_path / "mesh.ply"
+    save_cloud(Cloud(part.points, faces=fan), str(src))
+    denoise = _SCRIPT.split("<filter name=\"Compute")[0] + "</FilterScript>\n"
+    for name, script in (("keeps.mlx", denoise), ("points.mlx", _SCRIPT.format(ratio=0.5))):
+        (tmp_path / name).write_text(script)
+    args = ["run", str(tmp_path / "keeps.mlx"), str(src), str(tmp_path / "out.las"), "--quiet"]
+    assert main(args) == 1
+    assert f"{len(fan)} faces" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keeps.mlx", "mesh.ply", "points.mlx"]
+    assert main([*args, "--drop-faces"]) == 0
+    assert load_cloud(str(tmp_path / "out.las")).faces is None
+    # simplification makes a new layer of points: nothing to drop, no flag needed
+    args[1:4] = [str(tmp_path / "points.mlx"), str(src), str(tmp_path / "simple.las")]
+    assert main(args) == 0
+    assert len(load_cloud(str(tmp_path / "simple.las"))) == len(part.points) // 2
+    ms = pcprep.MeshSet()
+    ms.load_new_mesh(str(src))
+    with pytest.raises(pcprep.PointCloudError, match=f"{len(fan)} faces"):
+        ms.save_current_mesh(str(tmp_path / "ms.xyz"))
+    ms.meshing_remove_all_faces()
+    ms.save_current_mesh(str(tmp_path / "ms.xyz"))
+    assert np.allclose(load_cloud(str(tmp_path / "ms.xyz")).points, part.points)

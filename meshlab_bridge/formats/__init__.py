@@ -169,8 +169,9 @@ def check_destination(path, *, needs: tuple[str, ...] = (), source=None) -> None
 
 def check_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:
     """Refuse a destination that would lose part of ``cloud`` (its normals,
-    colours, quality or named attributes) or its coordinates' precision; run it
-    on the input, before a filter starts, and again when writing."""
+    colours, quality, named attributes or faces) or its coordinates'
+    precision; run it on the input, before a filter starts, and again when
+    writing."""
     path = os.fspath(path)
     check_destination(path, needs=needs)
     check_kept(cloud, path)
@@ -181,9 +182,9 @@ def check_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:
 
 
 def check_kept(cloud: Cloud, path: str) -> None:
-    """Refuse a format that cannot store ``cloud``'s normals, colours, quality
-    or named attributes (``check_cloud`` without the folder and precision
-    tests: a streamed writer runs it on every block)."""
+    """Refuse a format that cannot store ``cloud``'s normals, colours, quality,
+    named attributes or faces (``check_cloud`` without the folder and
+    precision tests: a streamed writer runs it on every block)."""
     ext = _ext(path)
     have = {"normal": cloud.normals is not None, "color": cloud.colors is not None,
             "quality": cloud.quality is not None, "attributes": bool(cloud.attributes)}
@@ -201,6 +202,22 @@ def check_kept(cloud: Cloud, path: str) -> None:
         raise PointCloudError(
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
+    check_faces(0 if cloud.faces is None else len(cloud.faces), path)
+
+
+def check_faces(count: int, path) -> None:
+    """Refuse to write ``count`` faces to a format that stores points alone
+    (LAS, LAZ, PCD, XYZ, E57): writing the vertices without them would lose
+    the mesh without a word.  Dropping them is the user's call, made
+    explicitly (``--drop-faces``, MeshLab's Remove All Faces, or
+    ``cloud.with_(faces=None)``)."""
+    ext = _ext(path)
+    if count and "faces" not in CAN_STORE.get(ext, ()):
+        raise PointCloudError(
+            f"cannot write {os.fspath(path)!r}: the {ext} format stores points alone and "
+            f"would lose the input's {count} faces; write .ply, .obj or .off to keep them, "
+            "or drop them explicitly (CLI: --drop-faces; MeshLab: Remove All Faces, "
+            "meshing_remove_all_faces; Python: cloud.with_(faces=None))")
 
 
 def write_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:

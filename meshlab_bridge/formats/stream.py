@@ -192,11 +192,12 @@ def normals_into(path, n: int, out: str):
 
 
 def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
-                   n: int | None = None) -> int:
+                   n: int | None = None, drop_faces: bool = False) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal); ``n``
     is the input's row count where the caller has it (``point_count``, which
-    for XYZ reads the file).  Returns the number of rows written."""
+    for XYZ reads the file); ``drop_faces``: write the vertices without the
+    input's faces.  Returns the number of rows written."""
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
@@ -205,6 +206,8 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
         from . import write_cloud
 
         cloud = read_cloud(src)
+        if drop_faces:
+            cloud = cloud.with_(faces=None)
         keep = _kept(spec, fields, len(cloud))
         out = next(_results(spec, iter([(0, cloud)]), fields, keep, dst))
         write_cloud(out, dst)
@@ -212,8 +215,11 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
     n = point_count(src) if n is None else n
     keep = _kept(spec, fields, n)
     if to == ".ply":
+        tail = mesh_tail(src)
+        if drop_faces and tail is not None:
+            tail = (None, tail[1])
         return _write_ply(lambda: _results(spec, blocks(size), fields, keep, dst), dst,
-                          mesh_tail(src), keep)
+                          tail, keep)
     if to == ".xyz":
         return _write_xyz(_results(spec, blocks(size), fields, keep, dst), dst)
     if to == ".e57":
@@ -231,18 +237,25 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
     return _write_las(_results(spec, blocks(size), fields, keep, dst), dst)
 
 
-def check_fields(src, dst) -> None:
+def check_fields(src, dst, *, drop_faces: bool = False) -> None:
     """Refuse, before a tiled run, a destination whose format cannot store the
-    input's normals, colours, quality or attributes, as the one-piece run
-    refuses it once the cloud is read (``check_kept``): on the first block of
-    a format read in blocks, on the whole cloud of a format read whole (which
-    the run reads whole as well).  An input ``read_cloud`` cannot read is
-    refused here too, not at the write after the run."""
+    input's normals, colours, quality, attributes or faces, as the one-piece
+    run refuses it once the cloud is read (``check_kept``): on the first block
+    of a format read in blocks (and the face count of a mesh read so), on the
+    whole cloud of a format read whole (which the run reads whole as well).
+    ``drop_faces``: the output is to hold no faces.  An input ``read_cloud``
+    cannot read is refused here too, not at the write after the run."""
+    from . import check_faces
+
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     if blocks is None:
-        check_kept(read_cloud(src), dst)
+        cloud = read_cloud(src)
+        check_kept(cloud.with_(faces=None) if drop_faces else cloud, dst)
         return
+    tail = mesh_tail(src)
+    if not drop_faces and tail is not None and tail[0] is not None:
+        check_faces(len(tail[0]), dst)
     if _ext(src) == ".e57":  # which fields, not their values: no pass over the colours
         from . import e57
 
