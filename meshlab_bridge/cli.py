@@ -75,6 +75,10 @@ def _add_filter_command(sub, spec) -> None:
     p.add_argument("--drop-faces", action="store_true",
                    help="write the vertices without the input's faces (needed to write a "
                         "mesh as LAS, LAZ, PCD, XYZ or E57, which store points alone)")
+    p.add_argument("--drop-face-properties", action="store_true",
+                   help="write the faces without what they carry besides their vertices "
+                        "(face colours, texture coordinates, materials), which pcprep "
+                        "does not keep")
     p.add_argument("--save-mlx", default=None, metavar="PATH",
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
@@ -162,6 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="drop rows whose coordinates hold NaN or Inf (indices reported)")
     run.add_argument("--drop-faces", action="store_true",
                      help="write the last layer's vertices without its faces")
+    run.add_argument("--drop-face-properties", action="store_true",
+                     help="write the last layer's faces without their colours, texture "
+                          "coordinates or materials")
     run.add_argument("--quiet", action="store_true", help="no progress messages")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
@@ -365,8 +372,7 @@ def _filter_file(spec, params: dict, src: str, dst: str, args) -> None:
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)  # before any work
     cloud = load_cloud(src, nonfinite="drop" if args.drop_nonfinite else "error")
-    if args.drop_faces:
-        cloud = cloud.with_(faces=None)
+    cloud = _dropped(cloud, args)
     dropped = cloud.meta.get("dropped_rows", ())
     if len(dropped):
         log.warning("%s: dropped %d row(s) with non-finite coordinates: %s", src,
@@ -382,6 +388,14 @@ def _filter_file(spec, params: dict, src: str, dst: str, args) -> None:
                     f" (rows {shown})" if len(gone) else "")
     save_cloud(out, dst, require=needs, ramp=spec.kind == "scalar")
     log.info("%s: wrote %d points to %s", spec.command, len(out), dst)
+
+
+def _dropped(cloud, args):
+    """``cloud`` without its faces (``--drop-faces``) or their properties
+    (``--drop-face-properties``), as the user asked."""
+    from .formats import stream
+
+    return stream._dropped(cloud, args.drop_faces, args.drop_face_properties)
 
 
 def _tiled(args) -> bool:
@@ -416,7 +430,8 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
                                     "with tiles")
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)
-    stream.check_fields(src, dst, drop_faces=args.drop_faces)  # before any work
+    drops = {"drop_faces": args.drop_faces, "drop_face_properties": args.drop_face_properties}
+    stream.check_fields(src, dst, **drops)  # before any work
     tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
     scratch = _scratch_folder(args.scratch, "pcprep-tiles-")
     try:
@@ -437,8 +452,7 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
             res = tiles.run_tiled(spec.name, source=source, normals=normals, params=params,
                                   tiles=args.tiles, client=client, scratch=scratch,
                                   worker_io={"on": True, "off": False}.get(args.worker_io))
-        written = stream.write_streamed(spec, src, dst, res.fields, n=n,
-                                        drop_faces=args.drop_faces)
+        written = stream.write_streamed(spec, src, dst, res.fields, n=n, **drops)
         log.info("%s: wrote %d points to %s (%d tiles, halo up to %.3g)", spec.command,
                  written, dst, res.stats["tiles"], res.stats["halo_max"])
     finally:
@@ -459,9 +473,7 @@ def _cmd_run(args) -> None:
     formats.check_cloud(cloud.with_(faces=None), args.output)
     ms.add_cloud(cloud)
     ms.apply_filter_script()
-    out = ms.current_cloud()
-    if args.drop_faces:
-        out = out.with_(faces=None)
+    out = _dropped(ms.current_cloud(), args)
     save_cloud(out, args.output)
     if args.save_mlx:
         ms.save_filter_script(args.save_mlx)

@@ -650,6 +650,10 @@ def test_fan_triangles_is_the_plain_fan(tmp_path):
         assert np.array_equal(fan_triangles(obj), fan_triangles(rows)), m
 
 
+#: the 60 vertices of the OBJ and OFF meshes
+CLOUD_60 = np.random.default_rng(60).random((60, 3)).round(6)
+
+
 def _mesh_ply(path, polygons, n=60, order="<", text=False, edges=False):
     """A PLY of ``n`` vertices and the faces ``polygons`` (one list each),
     with a per-face colour; and an ``edge`` element (``edges`` True) or one
@@ -726,6 +730,10 @@ def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
     polys = [list(g.choice(60, m, replace=False)) for m in g.integers(3, 6, 300)]
     _mesh_ply(tmp_path / "in.ply", polys, order=order, edges=edges)
     cloud = formats.read_cloud(tmp_path / "in.ply")
+    with pytest.raises(PointCloudError, match="faces carry red"):  # not lost silently
+        formats.write_cloud(cloud, tmp_path / "ours.ply")
+    assert not (tmp_path / "ours.ply").exists()
+    cloud = formats.drop_face_properties(cloud)
     formats.write_cloud(cloud, tmp_path / "ours.ply")
     cols = ply.vertex_columns(cloud)
     face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
@@ -737,6 +745,50 @@ def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
     assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "plyfile.ply").read_bytes()
     back = formats.read_cloud(tmp_path / "ours.ply")
     assert np.array_equal(back.faces, cloud.faces) and len(back.faces) > len(polys)
+
+
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "20", "--workers", "1"]])
+def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
+    # PLY face colours (a binary mesh, read in blocks when tiled), OBJ texture
+    # coordinates and materials, OFF face colours: pcprep does not write them,
+    # so a write of the faces is refused, naming them, unless the user drops
+    # them (the faces stay) or the faces
+    tris = [[i, i + 1, i + 2] for i in range(58)]
+    _mesh_ply(tmp_path / "m.ply", tris)
+    verts = "".join(f"v {x} {y} {z}\n" for x, y, z in CLOUD_60)
+    (tmp_path / "m.obj").write_text(
+        verts + "vt 0 0\nvt 1 0\nvt 0 1\nusemtl stone\n"
+        + "".join(f"f {a + 1}/1 {b + 1}/2 {c + 1}/3\n" for a, b, c in tris))
+    (tmp_path / "m.off").write_text(
+        f"OFF\n60 {len(tris)} 0\n" + verts.replace("v ", "")
+        + "".join(f"3 {a} {b} {c} 255 0 0\n" for a, b, c in tris))
+    carried = {"m.ply": "red", "m.obj": "texture coordinates, materials (usemtl)",
+               "m.off": "face colours"}
+    for name, what in carried.items():
+        src, dst = tmp_path / name, tmp_path / ("out" + name[1:])
+        run = ["outliers", str(src), str(dst), "--std-ratio", "50", "--quiet", *tiled]
+        assert main(run) == 1
+        assert f"faces carry {what}, which" in capsys.readouterr().err
+        assert not dst.exists()
+        assert main([*run, "--drop-face-properties"]) == 0
+        out, one = formats.read_cloud(dst), formats.read_cloud(src)
+        assert np.array_equal(out.faces, one.faces) and len(out.faces) == len(tris)
+        assert out.meta["face_properties"] == ()
+        assert main([*run, "--drop-faces"]) == 0
+        assert formats.read_cloud(dst).faces is None
+
+
+def test_a_face_element_without_vertex_indices_is_kept_as_another_element(tmp_path):
+    v = np.zeros(4, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    v["x"] = np.arange(4)
+    odd = np.zeros(2, dtype=[("area", "f4")])
+    odd["area"] = [0.5, 2.0]
+    PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(odd, "face")]).write(
+        str(tmp_path / "in.ply"))
+    cloud = formats.read_cloud(tmp_path / "in.ply")
+    assert cloud.faces is None and list(cloud.meta["ply"]["other_elements"]) == ["face"]
+    formats.write_cloud(cloud, tmp_path / "out.ply")
+    assert np.array_equal(PlyData.read(str(tmp_path / "out.ply"))["face"]["area"], [0.5, 2.0])
 
 
 @pytest.mark.parametrize("name, text, match", [

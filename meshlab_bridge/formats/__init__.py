@@ -202,22 +202,41 @@ def check_kept(cloud: Cloud, path: str) -> None:
         raise PointCloudError(
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
-    check_faces(0 if cloud.faces is None else len(cloud.faces), path)
+    check_faces(0 if cloud.faces is None else len(cloud.faces), path,
+                cloud.meta.get("face_properties", ()))
 
 
-def check_faces(count: int, path) -> None:
+def check_faces(count: int, path, properties=()) -> None:
     """Refuse to write ``count`` faces to a format that stores points alone
-    (LAS, LAZ, PCD, XYZ, E57): writing the vertices without them would lose
-    the mesh without a word.  Dropping them is the user's call, made
-    explicitly (``--drop-faces``, MeshLab's Remove All Faces, or
-    ``cloud.with_(faces=None)``)."""
+    (LAS, LAZ, PCD, XYZ, E57), and faces that carry ``properties`` (what the
+    reader found on the faces besides their vertices: PLY face colours,
+    texture coordinates, …; OBJ texture coordinates and materials; OFF face
+    colours), which pcprep does not write: either would lose part of the
+    mesh without a word.  Dropping them is the user's call, made explicitly
+    (``--drop-faces``, ``--drop-face-properties``, MeshLab's Remove All
+    Faces, or in Python ``cloud.with_(faces=None)`` and
+    ``drop_face_properties(cloud)``)."""
     ext = _ext(path)
-    if count and "faces" not in CAN_STORE.get(ext, ()):
+    if not count:
+        return
+    if "faces" not in CAN_STORE.get(ext, ()):
         raise PointCloudError(
             f"cannot write {os.fspath(path)!r}: the {ext} format stores points alone and "
             f"would lose the input's {count} faces; write .ply, .obj or .off to keep them, "
             "or drop them explicitly (CLI: --drop-faces; MeshLab: Remove All Faces, "
             "meshing_remove_all_faces; Python: cloud.with_(faces=None))")
+    if properties:
+        raise PointCloudError(
+            f"cannot write {os.fspath(path)!r}: the input's faces carry "
+            f"{', '.join(properties)}, which pcprep does not keep; drop them explicitly to "
+            "write the faces without them (CLI: --drop-face-properties; Python: "
+            "formats.drop_face_properties(cloud)), or the vertices alone (--drop-faces)")
+
+
+def drop_face_properties(cloud: Cloud) -> Cloud:
+    """``cloud`` whose faces are to be written without the properties the
+    reader found on them (``check_faces``); the faces themselves stay."""
+    return cloud.with_(meta={**cloud.meta, "face_properties": ()})
 
 
 def write_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:

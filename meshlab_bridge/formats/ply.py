@@ -61,8 +61,7 @@ def read(path: str) -> Cloud:
     ply = load(path)
     cloud = vertex_cloud(np.array(ply["vertex"].data), ply, path)  # from the memmap
     faces = _faces(ply, len(cloud), path)
-    others = {el.name: el for el in ply.elements if el.name not in ("vertex", "face")}
-    cloud.meta["ply"]["other_elements"] = others
+    cloud.meta["ply"]["other_elements"] = {el.name: el for el in _other_elements(ply)}
     return cloud.with_(faces=faces)
 
 
@@ -171,8 +170,21 @@ def vertex_cloud(data: np.ndarray, ply, path: str, count: int | None = None) -> 
         "comments": list(ply.comments), "obj_info": list(ply.obj_info),
         "types": {n: data.dtype[n].str for n in names}, "order": names,
         "other_elements": {},
-        "n_vertices": ply["vertex"].count if count is None else count}}
+        "n_vertices": ply["vertex"].count if count is None else count},
+        "face_properties": face_properties(ply)}
     return Cloud(pts, normals, colors, quality, None, attrs, os.path.basename(path), meta)
+
+
+def face_properties(ply) -> tuple[str, ...]:
+    """The face element's properties besides its vertex-index list (colours,
+    quality, texture coordinates, …), which pcprep reads past and does not
+    write: a write of the faces refuses to lose them unless asked
+    (``formats.check_faces``)."""
+    if "face" not in ply or ply["face"].count == 0:
+        return ()
+    key = _face_key(ply["face"])
+    return () if key is None else tuple(p.name for p in ply["face"].properties
+                                        if p.name != key)
 
 
 def ascii_header(path: str):
@@ -322,6 +334,13 @@ def _faces(ply, n: int, path: str) -> np.ndarray | None:
     return faces
 
 
+def _other_elements(ply) -> list:
+    """The elements besides the vertices and the faces (a ``face`` element
+    without a vertex-index list is one of them), in file order."""
+    return [el for el in ply.elements if el.name != "vertex"
+            and not (el.name == "face" and _face_key(el) is not None)]
+
+
 def _face_key(el) -> str | None:
     """The face element's vertex-index list, by either of its usual names."""
     return next((p.name for p in el.properties if p.name in ("vertex_indices", "vertex_index")),
@@ -401,7 +420,7 @@ def write(cloud: Cloud, path: str) -> None:
                                   {n: vertex.dtype[n] for n in cols}))
         return
     data = _ply_data(elements, info)
-    if data.text or any(_has_list(el) for el in elements[1:] if el.name != "face"):
+    if data.text or any(_has_list(el) for el in elements[1:] if not _is_triangles(el)):
         data.write(path)
     else:
         _write_binary(data, path)
@@ -411,6 +430,12 @@ def _has_list(el) -> bool:
     from plyfile import PlyListProperty
 
     return any(isinstance(p, PlyListProperty) for p in el.properties)
+
+
+def _is_triangles(el) -> bool:
+    """``el`` is the face element ``write`` makes (not another element of
+    the file named ``face``, which is written as it was read)."""
+    return el.name == "face" and el.data.dtype.names == ("vertex_indices",)
 
 
 def _write_binary(data, path: str) -> None:
@@ -423,7 +448,7 @@ def _write_binary(data, path: str) -> None:
     with open(path, "wb") as f:
         f.write(data.header.encode("ascii") + b"\n")
         for el in data.elements:
-            if el.name == "face":
+            if _is_triangles(el):
                 tri = el.data["vertex_indices"]
                 for s in range(0, len(tri), TEXT_BLOCK):
                     f.write(triangle_records(tri[s:s + TEXT_BLOCK], order))
@@ -463,7 +488,7 @@ def mesh_tail(ply, path: str):
     read row by row (some face is not a triangle) or another element with a
     list property.  A face that refers to a vertex that does not exist is
     refused as ``read`` refuses it."""
-    others = [el for el in ply.elements if el.name not in ("vertex", "face")]
+    others = _other_elements(ply)
     if any(_has_list(el) for el in others):
         return None
     if "face" not in ply or ply["face"].count == 0:

@@ -192,12 +192,15 @@ def normals_into(path, n: int, out: str):
 
 
 def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
-                   n: int | None = None, drop_faces: bool = False) -> int:
+                   n: int | None = None, drop_faces: bool = False,
+                   drop_face_properties: bool = False) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal); ``n``
     is the input's row count where the caller has it (``point_count``, which
     for XYZ reads the file); ``drop_faces``: write the vertices without the
-    input's faces.  Returns the number of rows written."""
+    input's faces; ``drop_face_properties``: the faces without the
+    properties they carry (``check_faces``).  Returns the number of rows
+    written."""
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     to = _ext(dst)
@@ -205,19 +208,15 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
         # no chunked reader or writer for the pair: the cloud in memory, written whole
         from . import write_cloud
 
-        cloud = read_cloud(src)
-        if drop_faces:
-            cloud = cloud.with_(faces=None)
+        cloud = _dropped(read_cloud(src), drop_faces, drop_face_properties)
         keep = _kept(spec, fields, len(cloud))
         out = next(_results(spec, iter([(0, cloud)]), fields, keep, dst))
         write_cloud(out, dst)
         return len(out)
+    tail = _check_tail(src, dst, drop_faces, drop_face_properties)
     n = point_count(src) if n is None else n
     keep = _kept(spec, fields, n)
     if to == ".ply":
-        tail = mesh_tail(src)
-        if drop_faces and tail is not None:
-            tail = (None, tail[1])
         return _write_ply(lambda: _results(spec, blocks(size), fields, keep, dst), dst,
                           tail, keep)
     if to == ".xyz":
@@ -237,25 +236,23 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
     return _write_las(_results(spec, blocks(size), fields, keep, dst), dst)
 
 
-def check_fields(src, dst, *, drop_faces: bool = False) -> None:
+def check_fields(src, dst, *, drop_faces: bool = False,
+                 drop_face_properties: bool = False) -> None:
     """Refuse, before a tiled run, a destination whose format cannot store the
-    input's normals, colours, quality, attributes or faces, as the one-piece
-    run refuses it once the cloud is read (``check_kept``): on the first block
-    of a format read in blocks (and the face count of a mesh read so), on the
-    whole cloud of a format read whole (which the run reads whole as well).
-    ``drop_faces``: the output is to hold no faces.  An input ``read_cloud``
-    cannot read is refused here too, not at the write after the run."""
-    from . import check_faces
-
+    input's normals, colours, quality, attributes or faces, or faces that
+    carry properties, as the one-piece run refuses it once the cloud is read
+    (``check_kept``): on the first block of a format read in blocks (and the
+    faces of a mesh read so), on the whole cloud of a format read whole
+    (which the run reads whole as well).  ``drop_faces``: the output is to
+    hold no faces; ``drop_face_properties``: its faces are to be written
+    without their properties.  An input ``read_cloud`` cannot read is
+    refused here too, not at the write after the run."""
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
     if blocks is None:
-        cloud = read_cloud(src)
-        check_kept(cloud.with_(faces=None) if drop_faces else cloud, dst)
+        check_kept(_dropped(read_cloud(src), drop_faces, drop_face_properties), dst)
         return
-    tail = mesh_tail(src)
-    if not drop_faces and tail is not None and tail[0] is not None:
-        check_faces(len(tail[0]), dst)
+    _check_tail(src, dst, drop_faces, drop_face_properties)
     if _ext(src) == ".e57":  # which fields, not their values: no pass over the colours
         from . import e57
 
@@ -263,6 +260,31 @@ def check_fields(src, dst, *, drop_faces: bool = False) -> None:
     for _, cloud in blocks(1024):
         check_kept(cloud, dst)
         return
+
+
+def _dropped(cloud, drop_faces: bool, drop_face_properties: bool):
+    """``cloud`` without the faces, or their properties, the user dropped."""
+    from . import drop_face_properties as without
+
+    if drop_faces:
+        cloud = cloud.with_(faces=None)
+    return without(cloud) if drop_face_properties else cloud
+
+
+def _check_tail(src: str, dst: str, drop_faces: bool, drop_face_properties: bool):
+    """``check_faces`` on a mesh read in blocks (its faces are in its
+    ``mesh_tail``, not in the blocks); returns that tail, without the faces
+    where they are dropped."""
+    from . import check_faces, ply
+
+    tail = mesh_tail(src)
+    if tail is None or tail[0] is None:
+        return tail
+    if drop_faces:
+        return None, tail[1]
+    props = () if drop_face_properties else ply.face_properties(_ply_mmap(src))
+    check_faces(len(tail[0]), dst, props)
+    return tail
 
 
 def _header_over(outputs):

@@ -100,6 +100,7 @@ def _triangles(poly: list[int]) -> list[tuple[int, int, int]]:
 
 def _read_obj(path: str) -> Cloud:
     verts, cols, vns, faces = [], [], [], []
+    textured = materials = False
     with open(path, encoding="utf-8", errors="replace") as f:
         for no, line in enumerate(f, 1):
             tok = line.split("#", 1)[0].split()
@@ -116,6 +117,8 @@ def _read_obj(path: str) -> Cloud:
             elif tok[0] == "vn":
                 vns.append(_numbers(tok[1:4], path, no, "normal"))
             elif tok[0] == "f":
+                textured = textured or any(len(t.split("/")) > 1 and t.split("/")[1]
+                                           for t in tok[1:])
                 try:
                     idx = [int(t.split("/")[0]) for t in tok[1:]]
                 except ValueError:
@@ -124,6 +127,8 @@ def _read_obj(path: str) -> Cloud:
                 n = len(verts)
                 idx = [i - 1 if i > 0 else n + i for i in idx]
                 faces.extend(_triangles(idx))
+            elif tok[0] == "usemtl":
+                materials = True
     if not verts:
         raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
     pts = np.array(verts, dtype=np.float64)
@@ -135,8 +140,11 @@ def _read_obj(path: str) -> Cloud:
         colors = np.c_[np.array(cols, dtype=np.float64), np.ones(len(cols))]
     normals = np.array(vns, dtype=np.float64) if len(vns) == len(verts) else None
     tri = _check_faces(np.array(faces, dtype=np.int64).reshape(-1, 3), len(pts), path)
+    # what the faces carry that pcprep does not keep (formats.check_faces)
+    carried = (("texture coordinates",) * textured + ("materials (usemtl)",) * materials
+               + ("normals per corner",) * (len(vns) > 0 and normals is None))
     return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path),
-                 meta={"format": ".obj"})
+                 meta={"format": ".obj", "face_properties": carried})
 
 
 def _check_faces(faces: np.ndarray, n: int, path: str) -> np.ndarray | None:
@@ -177,13 +185,15 @@ def _read_off(path: str) -> Cloud:
         c = np.array([(r[width - 4:width] + [255.0])[:4] if len(r) >= width - 1 else
                       [255.0] * 4 for r in rows])
         colors = c / 255.0 if c.max() > 1.0 else c
-    faces = []
+    faces, coloured = [], False
     for no, tok in body[nv:]:
-        vals = [int(v) for v in _numbers(tok, path, no, "face")]
-        faces.extend(_triangles(vals[1:1 + vals[0]]))
+        vals = _numbers(tok, path, no, "face")
+        count = int(vals[0])
+        faces.extend(_triangles([int(v) for v in vals[1:1 + count]]))
+        coloured = coloured or len(vals) > 1 + count
     tri = _check_faces(np.array(faces, dtype=np.int64).reshape(-1, 3), nv, path)
     return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path),
-                 meta={"format": ".off"})
+                 meta={"format": ".off", "face_properties": ("face colours",) * coloured})
 
 
 def _write_xyz(cloud: Cloud, path) -> None:
