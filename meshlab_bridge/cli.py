@@ -205,7 +205,9 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
     else:
         lines.append("non-finite points: 0")
     if faces is not None:
-        lines.append(f"faces: {faces}")
+        carried = meta.get("face_properties", ())
+        lines.append(f"faces: {faces}" + (f" (carrying {', '.join(carried)}, which pcprep "
+                                          "does not write)" if carried else ""))
     if rows is not None:
         iso = count_isolated(rows)
         lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "
