@@ -193,14 +193,16 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
 
 def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool = False):
     """``_ply_float32``'s sphere as a binary mesh: triangles over random
-    vertices (a quad among them when asked), and an ``edge`` element."""
+    vertices (a quad among them with ``quad``, quads alone with
+    ``quad="all"``), and an ``edge`` element."""
     vertex = np.array(PlyData.read(str(_ply_float32(path, n, order)))["vertex"].data)
     g = np.random.default_rng(n + 1)
-    tri = np.r_[np.c_[np.arange(n - 2), np.arange(1, n - 1), np.arange(2, n)],
-                g.integers(0, n, (3 * n, 3))]
+    m = 4 if quad == "all" else 3
+    tri = np.r_[np.stack([np.arange(j, n - m + 1 + j) for j in range(m)], axis=1),
+                g.integers(0, n, (3 * n, m))]
     face = np.empty(len(tri), dtype=[("vertex_indices", "O")])
     face["vertex_indices"] = [np.asarray(t, dtype="i4") for t in tri]
-    if quad:
+    if quad is True:
         face["vertex_indices"][7] = np.array([0, 1, 2, 3], dtype="i4")
     els = [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]
     if edges:
@@ -213,12 +215,14 @@ def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool = Fal
 
 @pytest.mark.parametrize("name", ["denoise", "saliency", "outliers", "features", "simplify"])
 @pytest.mark.parametrize("order", ["<", ">"])
-def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, order):
-    """A binary PLY of triangles is written block by block too: the vertices,
-    then the triangles (renumbered, those with a removed vertex left out, as
-    ``Cloud.subset`` does) and, where every vertex is kept, the other
-    elements; byte for byte the file written from the whole result, and the
-    input never read whole.  A mesh with a quad is read whole."""
+@pytest.mark.parametrize("quad", [False, "all"])
+def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, order, quad):
+    """A binary PLY of triangles, or of quads, is written block by block too:
+    the vertices, then the triangles (quads fanned; renumbered, those with a
+    removed vertex left out, as ``Cloud.subset`` does) and, where every vertex
+    is kept, the other elements; byte for byte the file written from the
+    whole result, and the input never read whole.  A mesh of triangles and
+    quads is read whole."""
     from types import SimpleNamespace
 
     from pcprep.meshlab_bridge import registry
@@ -228,7 +232,7 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
 
     registry.load_all()
     spec = registry.get(name)
-    src = _mesh_float32(tmp_path / "in.ply", 2500, order)
+    src = _mesh_float32(tmp_path / "in.ply", 2500, order, quad=quad)
     cloud = formats.read_cloud(src)
     params = {"ratio": 0.3} if name == "simplify" else {}
     if name == "outliers":
@@ -247,8 +251,8 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
         assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
     assert streamed.read_bytes() == whole.read_bytes()
     assert (b"element edge 5" in whole.read_bytes()[:2000]) == (not removal)
-    _mesh_float32(tmp_path / "quad.ply", 2500, order, quad=True)
-    assert stream._block_reader(tmp_path / "quad.ply") is None
+    _mesh_float32(tmp_path / "mixed.ply", 2500, order, quad=True)
+    assert stream._block_reader(tmp_path / "mixed.ply") is None
 
 
 def test_mesh_face_out_of_range_is_refused_before_a_tiled_run(tmp_path):
@@ -680,10 +684,13 @@ def _mesh_ply(path, polygons, n=60, order="<", text=False, edges=False):
 
 @pytest.mark.parametrize("order", ["<", ">"])
 def test_binary_triangle_mesh_is_read_without_plyfile_row_loop(tmp_path, monkeypatch, order):
-    """A binary PLY of triangles is memory-mapped whole, faces too: the faces
-    read are plyfile's own parse, while plyfile's row-by-row reader is made to
-    fail.  A mesh with a quad is read row by row, as before, and fanned."""
+    """A binary PLY of triangles, or of quads, is memory-mapped whole, faces
+    too: the faces read are plyfile's own parse, while plyfile's row-by-row
+    reader is made to fail.  A mesh of triangles and a quad is read row by
+    row, as before, and fanned."""
     import plyfile
+
+    from pcprep.meshlab_bridge.formats import ply
 
     g = np.random.default_rng(2)
     tris = [list(g.choice(60, 3, replace=False)) for _ in range(200)]
@@ -694,16 +701,29 @@ def test_binary_triangle_mesh_is_read_without_plyfile_row_loop(tmp_path, monkeyp
     assert np.array_equal(plain["q.ply"].faces,
                           _fan_reference(tris[:50] + [[0, 1, 2, 3]] + tris[50:]))
 
+    quads = [list(g.choice(60, 4, replace=False)) for _ in range(200)]
+    _mesh_ply(tmp_path / "all4.ply", quads, order=order)
+    plain["all4.ply"] = formats.read_cloud(tmp_path / "all4.ply")
+    assert np.array_equal(plain["all4.ply"].faces, _fan_reference(quads))
+
     def refuse(self, *args):
         raise AssertionError("plyfile parsed a binary element row by row")
 
     monkeypatch.setattr(plyfile.PlyElement, "_read_bin", refuse)
-    fast = formats.read_cloud(tmp_path / "t.ply")
-    assert np.array_equal(fast.faces, plain["t.ply"].faces)
-    assert np.array_equal(fast.points, plain["t.ply"].points)
-    assert list(fast.meta["ply"]["other_elements"]) == ["edge"]
+    for name in ("t.ply", "all4.ply"):
+        fast = formats.read_cloud(tmp_path / name)
+        assert np.array_equal(fast.faces, plain[name].faces)
+        assert np.array_equal(fast.points, plain[name].points)
+    assert list(formats.read_cloud(tmp_path / "t.ply").meta["ply"]["other_elements"]) == \
+        ["edge"]
     with pytest.raises(AssertionError, match="row by row"):
         formats.read_cloud(tmp_path / "q.ply")
+    # a tiled run's quads: fanned slice by slice, slices that cut a quad in two
+    tri = ply.mesh_tail(ply.load(str(tmp_path / "all4.ply")), "all4.ply")[0]
+    assert len(tri) == 400
+    for size in (1, 7, 400, 1000):
+        got = np.concatenate([tri[s:s + size] for s in range(0, len(tri), size)])
+        assert np.array_equal(got, _fan_reference(quads))
 
 
 def test_cut_binary_triangle_mesh_is_refused_as_before(tmp_path):

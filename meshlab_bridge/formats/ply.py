@@ -75,12 +75,14 @@ def load(path: str):
     f = _KeepOpen(path, "rb")
     try:
         ply = None
-        triangles = _triangle_lists(f)
-        if triangles:  # memory-map the faces too, when every one is a triangle
+        key = _index_list(f)
+        for size in (3, 4) if key else ():
+            # memory-map the faces too, when every one is a triangle (or a quad)
             try:
-                ply = PlyData.read(f, known_list_len={"face": triangles})
+                ply = PlyData.read(f, known_list_len={"face": {key: size}})
+                break
             except PlyParseError:
-                f.seek(0)  # some face is not a triangle, or the file is damaged
+                f.seek(0)  # faces of other sizes, or a damaged file
         if ply is None:
             try:
                 ply = PlyData.read(f)
@@ -101,18 +103,19 @@ def load(path: str):
     return ply
 
 
-def _triangle_lists(f) -> dict:
-    """``{name: 3}`` for the face element's vertex-index list of a binary PLY
-    (the form of plyfile's ``known_list_len``), read from the header's lines;
-    empty for an ASCII file or one without such a list (a header plyfile
+def _index_list(f) -> str | None:
+    """The name of the face element's vertex-index list of a binary PLY
+    whose face element holds no other list, read from the header's lines;
+    None for an ASCII file or one without such a list (a header plyfile
     would not parse is refused by the read that follows).  The stream is left
     at its start.
 
     plyfile parses an element with a list property row by row in Python
-    (about 4 µs a face here), unless told each list's length, when it
-    memory-maps the element and refuses it if any row's count differs.  A
-    mesh of triangles is then read at the speed of its vertices; any other
-    mesh is read again, row by row, as before."""
+    (about 4 µs a face here), unless told each list's length
+    (``known_list_len``), when it memory-maps the element and refuses it if
+    any row's count differs.  A mesh of triangles, or of quads, is then read
+    at the speed of its vertices; any other mesh is read again, row by row,
+    as before."""
     element, lists, binary = None, [], False
     try:
         for _ in range(10_000):
@@ -126,12 +129,12 @@ def _triangle_lists(f) -> dict:
             elif tok[:2] == [b"property", b"list"] and element == [b"face"]:
                 lists.append(tok[-1])
         else:
-            return {}
+            return None
     finally:
         f.seek(0)
     if not binary or lists not in ([b"vertex_indices"], [b"vertex_index"]):
-        return {}
-    return {lists[0].decode("ascii"): 3}
+        return None
+    return lists[0].decode("ascii")
 
 
 def vertex_cloud(data: np.ndarray, ply, path: str, count: int | None = None) -> Cloud:
@@ -483,9 +486,10 @@ def triangle_element(count: int):
 def mesh_tail(ply, path: str):
     """What a binary PLY (``load``) holds besides its vertices, for a write in
     blocks: ``(triangles, others)``, the faces as the memory-mapped (f, 3)
-    index rows (None without faces, as ``read`` finds them) and the other
+    index rows, or memory-mapped quads fanned slice by slice (``_Fan``), the
+    triangles ``read`` makes of them (None without faces), and the other
     elements in file order.  None where the file is read whole: a face element
-    read row by row (some face is not a triangle) or another element with a
+    read row by row (faces of other or mixed sizes) or another element with a
     list property.  A face that refers to a vertex that does not exist is
     refused as ``read`` refuses it."""
     others = _other_elements(ply)
@@ -497,16 +501,36 @@ def mesh_tail(ply, path: str):
     key = _face_key(el)
     if key is None:
         return None, others
-    tri = el.data[key]
-    if tri.dtype == object:
+    polygons = el.data[key]
+    if polygons.dtype == object:
         return None
     lo, hi, n = 0, -1, ply["vertex"].count
-    for s in range(0, len(tri), TEXT_BLOCK):
-        part = tri[s:s + TEXT_BLOCK]
+    for s in range(0, len(polygons), TEXT_BLOCK):
+        part = polygons[s:s + TEXT_BLOCK]
         lo, hi = min(lo, int(part.min())), max(hi, int(part.max()))
     if lo < 0 or hi >= n:
         raise _missing_vertex(path, hi, n)
-    return tri, others
+    return (polygons if polygons.shape[1] == 3 else _Fan(polygons)), others
+
+
+class _Fan:
+    """The triangles ``fan_triangles`` makes of (f, m) polygons (m ≥ 3, the
+    memory-mapped quads of a mesh read in blocks), made slice by slice:
+    triangle t is triangle t mod (m − 2) of polygon t div (m − 2)."""
+
+    def __init__(self, polygons: np.ndarray):
+        self.polygons, self.per = polygons, polygons.shape[1] - 2
+
+    def __len__(self) -> int:
+        return len(self.polygons) * self.per
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        start, stop, step = key.indices(len(self))
+        if step != 1:
+            raise IndexError("_Fan: slices of step 1 only")
+        first = start // self.per
+        tri = fan_triangles(self.polygons[first:-(-stop // self.per)])
+        return tri[start - first * self.per:stop - first * self.per]
 
 
 def kept_triangles(tri: np.ndarray, kept, size: int = TEXT_BLOCK):
