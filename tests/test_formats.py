@@ -191,7 +191,7 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
     assert b"end_header" in whole.read_bytes()[:2000]
 
 
-def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool = False):
+def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool | str = False):
     """``_ply_float32``'s sphere as a binary mesh: triangles over random
     vertices (a quad among them with ``quad``, quads alone with
     ``quad="all"``), and an ``edge`` element."""

@@ -1273,14 +1273,14 @@ def test_cli_info_names_what_faces_carry(tmp_path, capsys):
     # the face colour a write would refuse to lose, in blocks as whole
     import plyfile
 
+    from pcprep.meshlab_bridge.formats import stream
+
     pts = _surface(400, seed=4, outliers=0)
     face = np.zeros(2, dtype=[("vertex_indices", "i4", (3,)), ("red", "u1")])
     face["vertex_indices"] = [[0, 1, 2], [2, 3, 4]]
     src = tmp_path / "mesh.ply"
     plyfile.PlyData([plyfile.PlyElement.describe(_scan_vertices(pts, "f8"), "vertex"),
                      plyfile.PlyElement.describe(face, "face")]).write(str(src))
-    from pcprep.meshlab_bridge.formats import stream
-
     assert stream._block_reader(str(src)) is not None
     whole = _info(capsys, str(src))
     assert "faces: 2 (carrying red, which pcprep does not write)" in whole
