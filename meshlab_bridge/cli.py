@@ -191,6 +191,18 @@ def _cmd_info(path: str) -> None:
                 describe(cloud), None if cloud.faces is None else len(cloud.faces))
 
 
+def _faces_kept(tri, dropped: list) -> int | None:
+    """How many of the triangles ``tri`` (``mesh_tail``'s) use none of the
+    ``dropped`` rows, counted in blocks: the faces the whole read keeps
+    (None where it keeps none, as ``Cloud.subset`` leaves no faces)."""
+    from .formats import stream
+
+    gone = np.unique(np.asarray(dropped, dtype=np.int64))
+    kept = sum(int(np.count_nonzero(~np.isin(tri[s:s + stream.CHUNK], gone).any(axis=1)))
+               for s in range(0, len(tri), stream.CHUNK)) if len(gone) else len(tri)
+    return kept or None
+
+
 def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
     """What ``pcprep info`` prints, from the file's ``meta``, its row count,
     the non-finite rows left out, the finite rows' bounding box, their
@@ -283,7 +295,7 @@ def _cmd_info_tiled(args) -> None:
                 del xyz
                 rows = tiles.spacing_rows(src, client, scratch, args.tiles)
         tri = (stream.mesh_tail(path) or (None,))[0]  # a mesh read in blocks
-        faces = None if tri is None or dropped else len(tri)  # dropping rows drops faces
+        faces = None if tri is None else _faces_kept(tri, dropped)
         _print_info(path, meta, n, dropped, (lo, hi) if finite else None, rows,
                     ranges.rows(), faces)
     finally:

@@ -614,6 +614,13 @@ def test_non_finite_ply_rows_are_refused_or_dropped_by_index(tmp_path, text):
     dropped = formats.read_cloud(tmp_path / "n.ply", nonfinite="drop")
     assert len(dropped) == 3 and list(dropped.meta["dropped_rows"]) == [2]
     assert main(["info", str(tmp_path / "n.ply")]) == 0
+    # a mesh keeps the faces that do not use a dropped row, renumbered
+    face = np.zeros(3, dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = [[0, 1, 3], [1, 2, 3], [3, 1, 0]]
+    PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(face, "face")],
+            text=text).write(str(tmp_path / "m.ply"))
+    mesh = formats.read_cloud(tmp_path / "m.ply", nonfinite="drop")
+    assert mesh.faces.tolist() == [[0, 1, 2], [2, 1, 0]]
 
 
 def test_ply_with_more_rows_than_declared_is_refused(tmp_path):

@@ -75,7 +75,8 @@ def read_cloud(path, *, nonfinite: str = "error") -> Cloud:
     nonfinite : {"error", "drop"}, default="error"
         Rows whose coordinates hold NaN or Inf raise ``PointCloudError`` naming
         them; with ``"drop"`` they are removed and their indices (into the file)
-        stored in ``cloud.meta["dropped_rows"]``.
+        stored in ``cloud.meta["dropped_rows"]``; a face that uses one of them
+        is removed with it, the others renumbered (``Cloud.subset``).
 
     Raises
     ------
@@ -124,7 +125,7 @@ def _nonfinite(cloud: Cloud, path: str, policy: str) -> Cloud:
             f"(rows {shown}); remove them, or read with nonfinite='drop' "
             "(CLI: --drop-nonfinite) to drop them and report their indices")
     keep = np.flatnonzero(~bad)
-    out = cloud.subset(keep, keep_faces=False)
+    out = cloud.subset(keep)  # a face that uses a dropped row goes with it
     return out.with_(meta={**out.meta, "dropped_rows": rows})
 
 
