@@ -79,6 +79,10 @@ def _add_filter_command(sub, spec) -> None:
                    help="write the faces without what they carry besides their vertices "
                         "(face colours, texture coordinates, materials), which pcprep "
                         "does not keep")
+    p.add_argument("--drop-elements", action="store_true",
+                   help="write a PLY's result without the elements it holds besides its "
+                        "vertices and faces (edges, cameras, …), which a removal would "
+                        "leave pointing at the wrong rows and other formats cannot hold")
     p.add_argument("--save-mlx", default=None, metavar="PATH",
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
@@ -169,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--drop-face-properties", action="store_true",
                      help="write the last layer's faces without their colours, texture "
                           "coordinates or materials")
+    run.add_argument("--drop-elements", action="store_true",
+                     help="write the last layer without the input PLY's elements besides "
+                          "its vertices and faces")
     run.add_argument("--quiet", action="store_true", help="no progress messages")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
@@ -405,11 +412,13 @@ def _filter_file(spec, params: dict, src: str, dst: str, args) -> None:
 
 
 def _dropped(cloud, args):
-    """``cloud`` without its faces (``--drop-faces``) or their properties
-    (``--drop-face-properties``), as the user asked."""
+    """``cloud`` without its faces (``--drop-faces``), their properties
+    (``--drop-face-properties``) or a PLY's other elements
+    (``--drop-elements``), as the user asked."""
     from .formats import stream
 
-    return stream._dropped(cloud, args.drop_faces, args.drop_face_properties)
+    return stream._dropped(cloud, args.drop_faces, args.drop_face_properties,
+                           args.drop_elements)
 
 
 def _tiled(args) -> bool:
@@ -444,7 +453,8 @@ def _filter_file_tiled(spec, params: dict, src: str, dst: str, args) -> None:
                                     "with tiles")
     needs = _NEEDS[spec.kind]
     formats.check_destination(dst, needs=needs)
-    drops = {"drop_faces": args.drop_faces, "drop_face_properties": args.drop_face_properties}
+    drops = {"drop_faces": args.drop_faces, "drop_face_properties": args.drop_face_properties,
+             "drop_elements": args.drop_elements}
     stream.check_fields(src, dst, **drops)  # before any work
     tiles._spec(registry, spec.name)  # a filter without a tiled form: refused here
     scratch = _scratch_folder(args.scratch, "pcprep-tiles-")
@@ -484,7 +494,7 @@ def _cmd_run(args) -> None:
         formats.check_destination(args.save_mlx + ".ply")  # its folder is writable
     cloud = load_cloud(args.input, nonfinite="drop" if args.drop_nonfinite else "error")
     # faces checked on the result only: the script may remove or make them
-    formats.check_cloud(cloud.with_(faces=None), args.output)
+    formats.check_cloud(_dropped(cloud, args).with_(faces=None), args.output)
     ms.add_cloud(cloud)
     ms.apply_filter_script()
     out = _dropped(ms.current_cloud(), args)

@@ -85,9 +85,9 @@ def test_parameters_are_declared_once(spec):
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     flags = {a.dest: a for a in sub.choices[spec.command]._actions if a.option_strings}
     assert set(flags) - {"help", "quiet", "drop_nonfinite", "drop_faces",
-                         "drop_face_properties", "out_dir", "format", "save_mlx", "tiles",
-                         "workers", "scheduler", "memory_budget", "worker_io",
-                         "scratch"} == set(keyword)
+                         "drop_face_properties", "drop_elements", "out_dir", "format",
+                         "save_mlx", "tiles", "workers", "scheduler", "memory_budget",
+                         "worker_io", "scratch"} == set(keyword)
     for p in spec.params:
         assert f"--{p.name.replace('_', '-')}" in flags[p.name].option_strings
         assert tuple(flags[p.name].choices or ()) == p.choices

@@ -245,10 +245,18 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
     removal = spec.kind in ("remove", "new_layer")
     assert (len(out.faces) < len(cloud.faces)) == removal
     whole, streamed = tmp_path / "whole.ply", tmp_path / "streamed.ply"
+    if removal:  # the edges would refer to removed rows: refused, unless dropped
+        for write in (lambda: formats.write_cloud(out, whole),
+                      lambda: stream.write_streamed(spec, src, streamed, fields, size=700)):
+            with pytest.raises(PointCloudError, match=r"element\(s\) edge refer"):
+                write()
+        assert not whole.exists() and not streamed.exists()
+        out = formats.drop_elements(out)
     formats.write_cloud(out, whole)
     with monkeypatch.context() as m:
         m.setattr(stream, "read_cloud", lambda *a: pytest.fail("read whole"))
-        assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
+        assert stream.write_streamed(spec, src, streamed, fields, size=700,
+                                     drop_elements=removal) == len(out)
     assert streamed.read_bytes() == whole.read_bytes()
     assert (b"element edge 5" in whole.read_bytes()[:2000]) == (not removal)
     _mesh_float32(tmp_path / "mixed.ply", 2500, order, quad=True)
@@ -1183,6 +1191,50 @@ def test_a_mesh_is_written_as_points_alone_only_when_asked(tmp_path, capsys, mon
         formats.write_cloud(plain, tmp_path / "api.xyz")
     formats.write_cloud(plain.with_(faces=None), tmp_path / "api.xyz")
     assert len(formats.read_cloud(tmp_path / "api.xyz")) == 600
+
+
+def _ply_with_elements(path, n=600, edges=True):
+    """``_ply_with_properties``' vertices (no faces) with a ``camera`` element,
+    which refers to no vertex, and, with ``edges``, an ``edge`` element."""
+    v = _ply_with_properties(path, text=False, n=n, faces=False)
+    cam = np.zeros(1, dtype=[("view_px", "f4"), ("view_py", "f4"), ("focal", "f4")])
+    cam["focal"] = 35.0
+    els = [PlyElement.describe(v, "vertex"), PlyElement.describe(cam, "camera")]
+    if edges:
+        e = np.zeros(3, dtype=[("vertex1", "i4"), ("vertex2", "i4")])
+        e["vertex1"], e["vertex2"] = [0, 1, 2], [1, 2, 3]
+        els.append(PlyElement.describe(e, "edge"))
+    PlyData(els).write(str(path))
+
+
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "200", "--workers", "1"]])
+def test_other_ply_elements_are_not_lost_without_a_word(tmp_path, capsys, monkeypatch, tiled):
+    # a camera refers to no vertex: kept after a removal; an edge refers to
+    # vertex rows: a removal would leave it wrong, so the write is refused
+    # unless --drop-elements; a format other than PLY holds neither (refused
+    # before any work, the tiled run too)
+    from pcprep.meshlab_bridge import tiles
+
+    _ply_with_elements(tmp_path / "both.ply")
+    _ply_with_elements(tmp_path / "camera.ply", edges=False)
+    remove = ["outliers", "--std-ratio", "1", "--quiet", *tiled]
+    assert main([*remove[:1], str(tmp_path / "both.ply"), str(tmp_path / "o.ply"),
+                 *remove[1:]]) == 1
+    assert "element(s) edge refer to vertex rows" in capsys.readouterr().err
+    assert not (tmp_path / "o.ply").exists()
+    for src, flag in (("both.ply", ["--drop-elements"]), ("camera.ply", [])):
+        assert main([*remove[:1], str(tmp_path / src), str(tmp_path / "o.ply"),
+                     *remove[1:], *flag]) == 0
+        back = PlyData.read(str(tmp_path / "o.ply"))
+        assert back["vertex"].count < 600
+        assert [el.name for el in back.elements] == ["vertex", *["camera"] * (not flag)]
+    with monkeypatch.context() as m:
+        m.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
+        assert main(["saliency", str(tmp_path / "both.ply"), str(tmp_path / "o.las"),
+                     "--quiet", *tiled]) == 1
+        assert "element(s) camera, edge have no place in a .las" in capsys.readouterr().err
+    assert main(["saliency", str(tmp_path / "both.ply"), str(tmp_path / "o.las"), "--quiet",
+                 "--drop-elements", *tiled]) == 0
 
 
 def test_a_tiled_run_refuses_an_input_it_could_not_write_from(tmp_path, capsys, monkeypatch):

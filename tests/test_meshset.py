@@ -182,6 +182,13 @@ def test_a_mesh_layer_is_saved_as_points_alone_only_when_asked(part, tmp_path, c
     args[1:4] = [str(tmp_path / "points.mlx"), str(src), str(tmp_path / "simple.las")]
     assert main(args) == 0
     assert len(load_cloud(str(tmp_path / "simple.las"))) == len(part.points) // 2
+    # a PLY's camera has no place in LAS: refused before the script runs
+    save_cloud(Cloud(part.points, meta={"ply": {"other_elements": {"camera": _camera()}}}),
+               str(tmp_path / "cam.ply"))
+    args[2:4] = [str(tmp_path / "cam.ply"), str(tmp_path / "cam.las")]
+    assert main(args) == 1
+    assert "element(s) camera have no place" in capsys.readouterr().err
+    assert main([*args, "--drop-elements"]) == 0
     ms = pcprep.MeshSet()
     ms.load_new_mesh(str(src))
     with pytest.raises(pcprep.PointCloudError, match=f"{len(fan)} faces"):
@@ -189,3 +196,11 @@ def test_a_mesh_layer_is_saved_as_points_alone_only_when_asked(part, tmp_path, c
     ms.meshing_remove_all_faces()
     ms.save_current_mesh(str(tmp_path / "ms.xyz"))
     assert np.allclose(load_cloud(str(tmp_path / "ms.xyz")).points, part.points)
+
+
+def _camera():
+    from plyfile import PlyElement
+
+    cam = np.zeros(1, dtype=[("focal", "f4")])
+    cam["focal"] = 35.0
+    return PlyElement.describe(cam, "camera")

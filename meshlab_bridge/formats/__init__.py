@@ -205,6 +205,38 @@ def check_kept(cloud: Cloud, path: str) -> None:
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
     check_faces(0 if cloud.faces is None else len(cloud.faces), path,
                 cloud.meta.get("face_properties", ()))
+    info = cloud.meta.get("ply", {})
+    others = list(info.get("other_elements", {}).values())
+    if others:
+        from .ply import kept_elements
+
+        kept = kept_elements(others, len(cloud), info) if ext == ".ply" else []
+        check_elements([el.name for el in others if el not in kept], path)
+
+
+def check_elements(lost, path) -> None:
+    """Refuse a write that would leave out the PLY elements named ``lost``
+    (besides the vertices and faces: edges, cameras, range grids, …): a
+    format other than PLY has no place for them, and after a removal an
+    element that refers to vertex rows (``ply.indexes_vertices``) would
+    refer to the wrong ones.  Dropping them is the user's call
+    (``--drop-elements``, ``drop_elements(cloud)``)."""
+    if lost:
+        why = ("refer to vertex rows the result no longer has" if _ext(path) == ".ply"
+               else f"have no place in a {_ext(path)} file")
+        raise PointCloudError(
+            f"cannot write {os.fspath(path)!r}: the input's PLY element(s) "
+            f"{', '.join(lost)} {why}; drop them explicitly (CLI: --drop-elements; "
+            "Python: formats.drop_elements(cloud))")
+
+
+def drop_elements(cloud: Cloud) -> Cloud:
+    """``cloud`` to be written without the PLY elements it was read with
+    besides its vertices and faces (``check_elements``)."""
+    info = cloud.meta.get("ply")
+    if not info or not info.get("other_elements"):
+        return cloud
+    return cloud.with_(meta={**cloud.meta, "ply": {**info, "other_elements": {}}})
 
 
 def check_faces(count: int, path, properties=()) -> None:

@@ -337,6 +337,24 @@ def _faces(ply, n: int, path: str) -> np.ndarray | None:
     return faces
 
 
+def indexes_vertices(el) -> bool:
+    """Whether element ``el`` refers to vertex rows: a property whose name
+    starts with ``vertex``, as the PLY convention names them (an ``edge``'s
+    ``vertex1`` and ``vertex2``, a range grid's ``vertex_indices``)."""
+    return any(p.name.startswith("vertex") for p in el.properties)
+
+
+def kept_elements(others, count: int, info: dict) -> list:
+    """Of the other elements ``others``, those a PLY of ``count`` vertices
+    written from the file ``info`` describes keeps as they were read: all of
+    them where every vertex is kept, else those that refer to no vertex (a
+    camera, a material); the others would refer to the wrong rows, and
+    ``formats.check_elements`` refuses to leave them out without a word."""
+    if count == info.get("n_vertices", -1):
+        return list(others)
+    return [el for el in others if not indexes_vertices(el)]
+
+
 def _other_elements(ply) -> list:
     """The elements besides the vertices and the faces (a ``face`` element
     without a vertex-index list is one of them), in file order."""
@@ -413,8 +431,7 @@ def write(cloud: Cloud, path: str) -> None:
         face["vertex_indices"] = cloud.faces
         elements.append(PlyElement.describe(face, "face"))
     info = cloud.meta.get("ply", {})
-    if len(cloud) == info.get("n_vertices", -1):  # edges etc. index the original rows
-        elements += list(info.get("other_elements", {}).values())
+    elements += kept_elements(info.get("other_elements", {}).values(), len(cloud), info)
     if info.get("text") and len(elements) == 1:  # plyfile's bytes, by NumPy
         with open(path, "wb") as f:
             f.write(header({n: v.dtype for n, v in cols.items()}, len(vertex), info))

@@ -193,13 +193,14 @@ def normals_into(path, n: int, out: str):
 
 def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
                    n: int | None = None, drop_faces: bool = False,
-                   drop_face_properties: bool = False) -> int:
+                   drop_face_properties: bool = False, drop_elements: bool = False) -> int:
     """Write ``spec``'s result over ``src`` to ``dst``: ``fields`` holds the
     result's per-row arrays in input order (``keep_idx`` for a removal); ``n``
     is the input's row count where the caller has it (``point_count``, which
     for XYZ reads the file); ``drop_faces``: write the vertices without the
     input's faces; ``drop_face_properties``: the faces without the
-    properties they carry (``check_faces``).  Returns the number of rows
+    properties they carry (``check_faces``); ``drop_elements``: without a
+    PLY's other elements (``check_elements``).  Returns the number of rows
     written."""
     src, dst = os.fspath(src), os.fspath(dst)
     blocks = _block_reader(src)
@@ -208,12 +209,12 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
         # no chunked reader or writer for the pair: the cloud in memory, written whole
         from . import write_cloud
 
-        cloud = _dropped(read_cloud(src), drop_faces, drop_face_properties)
+        cloud = _dropped(read_cloud(src), drop_faces, drop_face_properties, drop_elements)
         keep = _kept(spec, fields, len(cloud))
         out = next(_results(spec, iter([(0, cloud)]), fields, keep, dst))
         write_cloud(out, dst)
         return len(out)
-    tail = _check_tail(src, dst, drop_faces, drop_face_properties)
+    tail = _check_tail(src, dst, drop_faces, drop_face_properties, drop_elements)
     n = point_count(src) if n is None else n
     keep = _kept(spec, fields, n)
     if to == ".ply":
@@ -236,8 +237,8 @@ def write_streamed(spec, src, dst, fields: dict, *, size: int = WRITE_ROWS,
     return _write_las(_results(spec, blocks(size), fields, keep, dst), dst)
 
 
-def check_fields(src, dst, *, drop_faces: bool = False,
-                 drop_face_properties: bool = False) -> None:
+def check_fields(src, dst, *, drop_faces: bool = False, drop_face_properties: bool = False,
+                 drop_elements: bool = False) -> None:
     """Refuse, before a tiled run, a destination whose format cannot store the
     input's normals, colours, quality, attributes or faces, or faces that
     carry properties, as the one-piece run refuses it once the cloud is read
@@ -245,14 +246,16 @@ def check_fields(src, dst, *, drop_faces: bool = False,
     faces of a mesh read so), on the whole cloud of a format read whole
     (which the run reads whole as well).  ``drop_faces``: the output is to
     hold no faces; ``drop_face_properties``: its faces are to be written
-    without their properties.  An input ``read_cloud`` cannot read is
-    refused here too, not at the write after the run."""
+    without their properties; ``drop_elements``: without a PLY's other
+    elements.  An input ``read_cloud`` cannot read is refused here too, not
+    at the write after the run."""
     src, dst = os.fspath(src), os.fspath(dst)
+    drops = (drop_faces, drop_face_properties, drop_elements)
     blocks = _block_reader(src)
     if blocks is None:
-        check_kept(_dropped(read_cloud(src), drop_faces, drop_face_properties), dst)
+        check_kept(_dropped(read_cloud(src), *drops), dst)
         return
-    _check_tail(src, dst, drop_faces, drop_face_properties)
+    _check_tail(src, dst, *drops)
     if _ext(src) == ".e57":  # which fields, not their values: no pass over the colours
         from . import e57
 
@@ -262,29 +265,40 @@ def check_fields(src, dst, *, drop_faces: bool = False,
         return
 
 
-def _dropped(cloud, drop_faces: bool, drop_face_properties: bool):
-    """``cloud`` without the faces, or their properties, the user dropped."""
+def _dropped(cloud, drop_faces: bool, drop_face_properties: bool,
+             drop_elements: bool = False):
+    """``cloud`` without the faces, their properties or the PLY's other
+    elements, as the user dropped them."""
+    from . import drop_elements as without_elements
     from . import drop_face_properties as without
 
     if drop_faces:
         cloud = cloud.with_(faces=None)
-    return without(cloud) if drop_face_properties else cloud
+    cloud = without(cloud) if drop_face_properties else cloud
+    return without_elements(cloud) if drop_elements else cloud
 
 
-def _check_tail(src: str, dst: str, drop_faces: bool, drop_face_properties: bool):
-    """``check_faces`` on a mesh read in blocks (its faces are in its
-    ``mesh_tail``, not in the blocks); returns that tail, without the faces
-    where they are dropped."""
-    from . import check_faces, ply
+def _check_tail(src: str, dst: str, drop_faces: bool, drop_face_properties: bool,
+                drop_elements: bool = False):
+    """``check_faces`` on a mesh read in blocks (its faces and other
+    elements are in its ``mesh_tail``, not in the blocks), and
+    ``check_elements`` where ``dst`` is not a PLY; returns that tail,
+    without the faces or elements dropped."""
+    from . import check_elements, check_faces, ply
 
     tail = mesh_tail(src)
-    if tail is None or tail[0] is None:
+    if tail is None:
         return tail
-    if drop_faces:
-        return None, tail[1]
+    tri, others = tail
+    if drop_elements:
+        others = []
+    if _ext(dst) != ".ply":
+        check_elements([el.name for el in others], dst)
+    if tri is None or drop_faces:
+        return None, others
     props = () if drop_face_properties else ply.face_properties(_ply_mmap(src))
-    check_faces(len(tail[0]), dst, props)
-    return tail
+    check_faces(len(tri), dst, props)
+    return tri, others
 
 
 def _header_over(outputs):
@@ -492,8 +506,11 @@ def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
     kept = None if keep is None else keep.idx
     faces = 0 if tri is None else sum(len(b) for b in ply.kept_triangles(tri, kept))
     elements = [ply.triangle_element(faces)] if faces else []
-    if count != info.get("n_vertices", -1):  # edges etc. index the original rows
-        others = []
+    from . import check_elements
+
+    check_elements([el.name for el in others
+                    if el not in ply.kept_elements(others, count, info)], dst)
+    others = ply.kept_elements(others, count, info)
     written = 0
     with _temporary(dst) as tmp, open(tmp, "wb") as f:
         rows = None
