@@ -72,23 +72,30 @@ def _add_filter_command(sub, spec) -> None:
     p.add_argument("--drop-nonfinite", action="store_true",
                    help="drop rows whose coordinates hold NaN or Inf (their indices are "
                         "reported) instead of refusing the file")
-    p.add_argument("--drop-faces", action="store_true",
-                   help="write the vertices without the input's faces (needed to write a "
-                        "mesh as LAS, LAZ, PCD, XYZ or E57, which store points alone)")
-    p.add_argument("--drop-face-properties", action="store_true",
-                   help="write the faces without what they carry besides their vertices "
-                        "(face colours, texture coordinates, materials), which pcprep "
-                        "does not keep")
-    p.add_argument("--drop-elements", action="store_true",
-                   help="write a PLY's result without the elements it holds besides its "
-                        "vertices and faces (edges, cameras, …), which a removal would "
-                        "leave pointing at the wrong rows and other formats cannot hold")
+    _add_drop_options(p, "the result")
     p.add_argument("--save-mlx", default=None, metavar="PATH",
                    help="also write this step as a MeshLab filter script (.mlx) that "
                         "pcprep run and pcprep.MeshSet replay")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     _add_scale_options(p, "the result equals the one-piece run's")
     p.set_defaults(_spec=spec)
+
+
+def _add_drop_options(p, result: str) -> None:
+    """The options that accept, by name, a loss a write refuses by default
+    (``formats.check_faces``, ``formats.check_elements``), for ``result``
+    (what the command writes)."""
+    p.add_argument("--drop-faces", action="store_true",
+                   help=f"write {result} as vertices without faces (needed to write a mesh "
+                        "as LAS, LAZ, PCD, XYZ or E57, which store points alone)")
+    p.add_argument("--drop-face-properties", action="store_true",
+                   help=f"write {result}'s faces without what they carry besides their "
+                        "vertices (face colours, texture coordinates, materials), which "
+                        "pcprep does not keep")
+    p.add_argument("--drop-elements", action="store_true",
+                   help=f"write {result} without the input PLY's elements besides its "
+                        "vertices and faces (edges, cameras, …), which a removal would "
+                        "leave pointing at the wrong rows and other formats cannot hold")
 
 
 def _add_scale_options(p, same: str) -> None:
@@ -168,14 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also write the pipeline that ran, as .mlx")
     run.add_argument("--drop-nonfinite", action="store_true",
                      help="drop rows whose coordinates hold NaN or Inf (indices reported)")
-    run.add_argument("--drop-faces", action="store_true",
-                     help="write the last layer's vertices without its faces")
-    run.add_argument("--drop-face-properties", action="store_true",
-                     help="write the last layer's faces without their colours, texture "
-                          "coordinates or materials")
-    run.add_argument("--drop-elements", action="store_true",
-                     help="write the last layer without the input PLY's elements besides "
-                          "its vertices and faces")
+    _add_drop_options(run, "the last layer")
     run.add_argument("--quiet", action="store_true", help="no progress messages")
     for spec in sorted(registry.load_all().values(), key=lambda s: s.command):
         _add_filter_command(sub, spec)
