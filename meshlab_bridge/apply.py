@@ -149,7 +149,8 @@ def _with_mask_quality(cloud: Cloud, mask) -> Cloud:
     return _keep_quality(cloud).with_(quality=mask.astype(np.float64))
 
 
-def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dict:
+def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (),
+                 carry_faces: tuple[str, ...] = (), **params) -> dict:
     """Apply the pcprep filter ``name`` (registry name or CLI command) to the
     current layer of ``ms``.
 
@@ -161,7 +162,8 @@ def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dic
     added are under ``"attributes"``.  ``carry`` names custom attributes of the
     layer that a ``new_layer`` filter copies to its kept rows (pymeshlab cannot
     list a layer's custom attributes, and MeshLab's layer copy drops them;
-    ``pcprep.MeshSet`` passes the ones it knows).
+    ``pcprep.MeshSet`` passes the ones it knows); ``carry_faces`` names the
+    custom face scalars it copies to the faces whose vertices are all kept.
     """
     spec = registry.get(name)
     resolved = spec.resolve(params)  # parameter errors before touching the layer
@@ -175,11 +177,15 @@ def apply_filter(ms, name: str, *, carry: tuple[str, ...] = (), **params) -> dic
         source = ms.current_mesh()
         kept = {k: np.array(source.vertex_custom_scalar_attribute_array(k))[idx]
                 for k in carry if _has_attribute(source, k)}
+        faces_kept = _kept_face_values(source, idx, carry_faces)
         _subset_layer(ms, layer, idx, f"{source.label()} ({spec.command})")
         mesh = ms.current_mesh()
         for key, values in kept.items():
             if not _has_attribute(mesh, key):
                 add_attribute(mesh, key, values)
+        for key, values in faces_kept.items():
+            if len(values) == mesh.face_number():  # else the layer names them lost
+                mesh.add_face_custom_scalar_attribute(values, key)
         outputs.update(mesh_id=ms.current_mesh_id(), kept=len(idx), attributes=[])
         return outputs
     if spec.kind == "remove":
@@ -296,6 +302,25 @@ def _subset_layer(ms, layer: int, idx: np.ndarray, label: str) -> None:
     if quality is not None:
         _carrier(ms, copy, quality[idx])
     ms.current_mesh().set_label(label)
+
+
+def _kept_face_values(mesh, idx: np.ndarray, names: tuple[str, ...]) -> dict:
+    """The custom face scalars ``names`` of ``mesh`` on the faces whose three
+    vertices are among the rows ``idx``, in face order: those MeshLab's
+    vertex removal keeps, in its order (as ``Cloud.subset`` keeps them)."""
+    if not names or not mesh.face_number():
+        return {}
+    inside = np.zeros(mesh.vertex_number(), dtype=bool)
+    inside[idx] = True
+    whole = inside[np.array(mesh.face_matrix())].all(axis=1)
+    out = {}
+    for name in names:
+        try:
+            out[name] = np.ascontiguousarray(
+                np.array(mesh.face_custom_scalar_attribute_array(name))[whole], np.float64)
+        except Exception:  # pymeshlab raises its own type for a missing attribute
+            pass
+    return out
 
 
 def _has_attribute(mesh, name: str) -> bool:

@@ -90,8 +90,9 @@ def _add_drop_options(p, result: str) -> None:
                         "as LAS, LAZ, PCD, XYZ or E57, which store points alone)")
     p.add_argument("--drop-face-properties", action="store_true",
                    help=f"write {result}'s faces without what they carry besides their "
-                        "vertices (face colours, texture coordinates, materials), which "
-                        "pcprep does not keep")
+                        "vertices (face colours, texture coordinates, materials): needed "
+                        "where pcprep cannot keep it (OBJ materials, OFF face colours, "
+                        "PLY face properties written to OBJ or OFF)")
     p.add_argument("--drop-elements", action="store_true",
                    help=f"write {result} without the input PLY's elements besides its "
                         "vertices and faces (edges, cameras, …), which a removal would "
@@ -224,9 +225,11 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
     else:
         lines.append("non-finite points: 0")
     if faces is not None:
-        carried = meta.get("face_properties", ())
-        lines.append(f"faces: {faces}" + (f" (carrying {', '.join(carried)}, which pcprep "
-                                          "does not write)" if carried else ""))
+        lost = meta.get("face_properties", ())
+        kept = [k for k in meta.get("ply", {}).get("face_types", {}) if k not in lost]
+        notes = ([f"with {', '.join(kept)}"] if kept else []) + (
+            [f"carrying {', '.join(lost)}, which pcprep does not write"] if lost else [])
+        lines.append(f"faces: {faces}" + (f" ({'; '.join(notes)})" if notes else ""))
     if rows is not None:
         iso = count_isolated(rows)
         lines.append(f"spacing h (mean distance to the {SPACING_K} nearest, isolated points "

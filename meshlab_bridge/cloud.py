@@ -37,7 +37,13 @@ class Cloud:
     meta : dict
         Format details: ``"format"`` (the extension read), ``"las_header"``,
         ``"ply"`` (comments, text/binary, property types), ``"dropped_rows"``
-        (rows removed for non-finite coordinates), ``"crs"`` (text, when known).
+        (rows removed for non-finite coordinates), ``"crs"`` (text, when known),
+        ``"face_properties"`` (what the faces carry that pcprep does not keep).
+    face_attributes : dict of str -> (f,) or (f, k) array
+        Per-triangle values, row t for ``faces[t]``, in file order: a PLY face
+        element's properties besides its vertex list (colours, quality, flags,
+        texture coordinates as the (f, 6) corners of each triangle, …), a
+        polygon's values on each triangle of its fan.
     """
 
     points: np.ndarray
@@ -48,30 +54,46 @@ class Cloud:
     attributes: dict = field(default_factory=dict)
     label: str = ""
     meta: dict = field(default_factory=dict)
+    face_attributes: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.points)
 
     def subset(self, idx: np.ndarray, *, keep_faces: bool = True) -> "Cloud":
         """The cloud restricted to rows ``idx`` (in that order); faces whose
-        three vertices are all kept are renumbered, the others dropped."""
+        three vertices are all kept are renumbered, with their face
+        attributes, the others dropped."""
         idx = np.asarray(idx, dtype=np.int64)
 
         def take(a):
             return None if a is None else a[idx]
 
-        faces = None
+        faces, face_attrs = None, {}
         if keep_faces and self.faces is not None and len(self.faces):
             new = np.full(len(self.points), -1, dtype=np.int64)
             new[idx] = np.arange(len(idx))
             f = new[self.faces]
-            f = f[(f >= 0).all(axis=1)]
-            faces = f if len(f) else None
+            whole = (f >= 0).all(axis=1)
+            if whole.any():
+                faces = f[whole]
+                face_attrs = {k: v[whole] for k, v in self.face_attributes.items()}
         return replace(self, points=self.points[idx], normals=take(self.normals),
                        colors=take(self.colors), quality=take(self.quality), faces=faces,
-                       attributes={k: v[idx] for k, v in self.attributes.items()})
+                       attributes={k: v[idx] for k, v in self.attributes.items()},
+                       face_attributes=face_attrs)
+
+    def __post_init__(self):
+        count = 0 if self.faces is None else len(self.faces)
+        bad = [k for k, v in self.face_attributes.items() if len(v) != count]
+        if bad:
+            raise ValueError(f"face attributes {', '.join(bad)} do not hold one row per "
+                             f"face ({count} faces)")
 
     def with_(self, **changes) -> "Cloud":
+        """A copy with ``changes``; new faces (or none) come without the old
+        faces' attributes unless ``face_attributes`` is given too."""
+        if "faces" in changes and "face_attributes" not in changes:
+            changes["face_attributes"] = {}
         return replace(self, **changes)
 
 

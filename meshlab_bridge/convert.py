@@ -75,6 +75,7 @@ def cloud_to_mesh(cloud: Cloud):
     mesh = pymeshlab.Mesh(**kwargs)
     for name, values in cloud.attributes.items():
         add_attribute(mesh, name, values)
+    add_face_attributes(mesh, cloud)
     return mesh
 
 
@@ -88,6 +89,22 @@ def add_attribute(mesh, name: str, values) -> None:
         return
     for key, col in _scalar_columns(name, values):
         mesh.add_vertex_custom_scalar_attribute(col, key)
+
+
+def add_face_attributes(mesh, cloud: Cloud) -> None:
+    """Attach ``cloud``'s face attributes to ``mesh`` (which holds its faces)
+    as float64 custom face scalars, ``name`` or ``name_k`` for the k-th
+    column of an (f, k) one: MeshLab keeps a face's custom attributes with
+    the face through its own filters (a removal drops them with the face)."""
+    for name, values in cloud.face_attributes.items():
+        for key, col in _scalar_columns(name, np.asarray(values)):
+            mesh.add_face_custom_scalar_attribute(col, key)
+
+
+def face_attribute_columns(name: str, width: int | None) -> list[str]:
+    """The custom face scalars ``add_face_attributes`` names for attribute
+    ``name`` of ``width`` columns (None: one value per face)."""
+    return [name] if width is None else [f"{name}_{k}" for k in range(width)]
 
 
 def _scalar_columns(name: str, values: np.ndarray):
@@ -105,10 +122,12 @@ def add_cloud_layer(ms, cloud: Cloud, label: str = "") -> int:
     made from a ``Mesh`` that already carried Python-added attributes crashes
     MeshLab's expression filters (``compute_coord_by_function`` and the like).
     """
-    ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={})), label or cloud.label or "cloud")
+    ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={}, face_attributes={})),
+                label or cloud.label or "cloud")
     mesh = ms.current_mesh()
     for name, values in cloud.attributes.items():
         add_attribute(mesh, name, values)
+    add_face_attributes(mesh, cloud)
     return ms.current_mesh_id()
 
 

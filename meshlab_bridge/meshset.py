@@ -34,7 +34,7 @@ from pcprep.filters._validation import InvalidParameterError
 from . import apply as _apply
 from . import formats, registry
 from .cloud import Cloud
-from .convert import add_cloud_layer, mesh_to_cloud
+from .convert import add_cloud_layer, face_attribute_columns, mesh_to_cloud
 
 #: formats whose attributes pcprep keeps when a MeshSet loads or saves them
 _OWN_FORMATS = (".ply", ".las", ".laz", ".pcd", ".xyz", ".e57")
@@ -55,8 +55,9 @@ class MeshSet(pymeshlab.MeshSet):
         self._record: list[ET.Element] = []
         self._loaded: list[tuple[str, object]] = []
         self._busy = False
-        #: layer id -> (attribute name -> dtype, file meta) for layers pcprep knows
-        self._layers: dict[int, tuple[dict, dict]] = {}
+        #: layer id -> (attribute name -> dtype, file meta, face attribute name ->
+        #: (dtype, columns or None)) for layers pcprep knows
+        self._layers: dict[int, tuple[dict, dict, dict]] = {}
 
     # -- filters ----------------------------------------------------------------
     def apply_filter(self, filter_name: str, **params):
@@ -66,15 +67,18 @@ class MeshSet(pymeshlab.MeshSet):
         if _is_pcprep(filter_name):
             spec = registry.get(filter_name)
             source = self.current_mesh_id()
-            attrs, meta = self._layers.get(source, ({}, {}))
+            attrs, meta, faces = self._layers.get(source, ({}, {}, {}))
             self._busy = True
             try:
-                out = _apply.apply_filter(self, spec.name, carry=tuple(attrs), **params)
+                columns = tuple(c for k, (_, w) in faces.items()
+                                for c in face_attribute_columns(k, w))
+                out = _apply.apply_filter(self, spec.name, carry=tuple(attrs),
+                                          carry_faces=columns, **params)
             finally:
                 self._busy = False
                 self.clear_filter_script()  # the MeshLab steps pcprep used internally
             added = {k: np.dtype(np.float64) for k in out["attributes"]}
-            self._layers[out["mesh_id"]] = ({**attrs, **added}, meta)
+            self._layers[out["mesh_id"]] = ({**attrs, **added}, meta, faces)
             self._record.append(_pcprep_element(spec, out["params"]))
             return out
         self.clear_filter_script()
@@ -114,7 +118,10 @@ class MeshSet(pymeshlab.MeshSet):
     def add_cloud(self, cloud: Cloud, label: str = "") -> int:
         """Add a ``Cloud`` as a new current layer whose attributes pcprep tracks."""
         layer = add_cloud_layer(self, cloud, label or cloud.label)
-        self._layers[layer] = ({k: v.dtype for k, v in cloud.attributes.items()}, cloud.meta)
+        faces = {k: (v.dtype, None if v.ndim == 1 else v.shape[1])
+                 for k, v in cloud.face_attributes.items()}
+        self._layers[layer] = ({k: v.dtype for k, v in cloud.attributes.items()}, cloud.meta,
+                               faces)
         return layer
 
     def save_current_mesh(self, file_name, *args, **kwargs):
@@ -129,13 +136,30 @@ class MeshSet(pymeshlab.MeshSet):
         return None
 
     def current_cloud(self) -> Cloud:
-        """The current layer as a ``Cloud`` with the attributes pcprep knows."""
-        attrs, meta = self._layers.get(self.current_mesh_id(), ({}, {}))
+        """The current layer as a ``Cloud`` with the attributes pcprep knows.
+        A face attribute the layer no longer holds (a MeshLab filter that
+        rebuilt the faces, or a layer copy, dropped it) is named in
+        ``meta["face_properties"]``, so a write of the faces refuses to lose
+        it without a word (``formats.check_faces``)."""
+        attrs, meta, faces = self._layers.get(self.current_mesh_id(), ({}, {}, {}))
         mesh = self.current_mesh()
         names = tuple(k for k in attrs if _apply._has_attribute(mesh, k))
         cloud = mesh_to_cloud(mesh, names)
         typed = {k: _restore(v, attrs[k]) for k, v in cloud.attributes.items()}
-        return cloud.with_(attributes=typed, meta=meta)
+        values, lost = {}, []
+        for name, (dtype, width) in faces.items() if cloud.faces is not None else ():
+            try:
+                cols = [np.array(mesh.face_custom_scalar_attribute_array(c), np.float64)
+                        for c in face_attribute_columns(name, width)]
+            except Exception:  # pymeshlab raises its own type for a missing attribute
+                lost.append(name)
+                continue
+            v = cols[0] if width is None else (np.column_stack(cols) if cols else
+                                               np.empty((len(cloud.faces), 0)))
+            values[name] = _restore(v, dtype)
+        if lost:
+            meta = {**meta, "face_properties": (*meta.get("face_properties", ()), *lost)}
+        return cloud.with_(attributes=typed, meta=meta, face_attributes=values)
 
     # -- filter scripts ---------------------------------------------------------
     def load_filter_script(self, path) -> None:

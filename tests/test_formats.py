@@ -191,17 +191,22 @@ def test_streamed_ply_is_the_file_written_whole(tmp_path, name, order):
     assert b"end_header" in whole.read_bytes()[:2000]
 
 
-def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool | str = False):
+def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool | str = False,
+                  props: bool = False):
     """``_ply_float32``'s sphere as a binary mesh: triangles over random
     vertices (a quad among them with ``quad``, quads alone with
-    ``quad="all"``), and an ``edge`` element."""
+    ``quad="all"``), with a colour and a quality per face (``props``), and
+    an ``edge`` element."""
     vertex = np.array(PlyData.read(str(_ply_float32(path, n, order)))["vertex"].data)
     g = np.random.default_rng(n + 1)
     m = 4 if quad == "all" else 3
     tri = np.r_[np.stack([np.arange(j, n - m + 1 + j) for j in range(m)], axis=1),
                 g.integers(0, n, (3 * n, m))]
-    face = np.empty(len(tri), dtype=[("vertex_indices", "O")])
+    face = np.empty(len(tri), dtype=[("vertex_indices", "O")]
+                    + [("red", "u1"), ("quality", "f4")] * props)
     face["vertex_indices"] = [np.asarray(t, dtype="i4") for t in tri]
+    if props:
+        face["red"], face["quality"] = np.arange(len(tri)) % 251, g.random(len(tri))
     if quad is True:
         face["vertex_indices"][7] = np.array([0, 1, 2, 3], dtype="i4")
     els = [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]
@@ -218,7 +223,8 @@ def _mesh_float32(path, n: int, order: str, edges: bool = True, quad: bool | str
 @pytest.mark.parametrize("quad", [False, "all"])
 def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, order, quad):
     """A binary PLY of triangles, or of quads, is written block by block too:
-    the vertices, then the triangles (quads fanned; renumbered, those with a
+    the vertices, then the triangles with their colour and quality (quads
+    fanned, each triangle with its quad's values; renumbered, those with a
     removed vertex left out, as ``Cloud.subset`` does) and, where every vertex
     is kept, the other elements; byte for byte the file written from the
     whole result, and the input never read whole.  A mesh of triangles and
@@ -232,8 +238,12 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
 
     registry.load_all()
     spec = registry.get(name)
-    src = _mesh_float32(tmp_path / "in.ply", 2500, order, quad=quad)
+    src = _mesh_float32(tmp_path / "in.ply", 2500, order, quad=quad, props=True)
     cloud = formats.read_cloud(src)
+    face = PlyData.read(str(src))["face"]  # plyfile's own parse
+    for k in ("red", "quality"):
+        assert np.array_equal(cloud.face_attributes[k], np.repeat(face[k], 2) if quad
+                              else face[k], equal_nan=k == "quality")
     params = {"ratio": 0.3} if name == "simplify" else {}
     if name == "outliers":
         params = {"method": "radius", "radius": 1.0}
@@ -259,6 +269,11 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
                                      drop_elements=removal) == len(out)
     assert streamed.read_bytes() == whole.read_bytes()
     assert (b"element edge 5" in whole.read_bytes()[:2000]) == (not removal)
+    back = formats.read_cloud(streamed)
+    assert list(back.face_attributes) == ["red", "quality"]
+    for k, v in out.face_attributes.items():
+        assert np.array_equal(back.face_attributes[k], v, equal_nan=k == "quality")
+        assert len(v) == len(out.faces)
     _mesh_float32(tmp_path / "mixed.ply", 2500, order, quad=True)
     assert stream._block_reader(tmp_path / "mixed.ply") is None
 
@@ -758,38 +773,46 @@ def test_cut_binary_triangle_mesh_is_refused_as_before(tmp_path):
 def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
     """The faces of a binary PLY are written as records, not by plyfile's row
     loop, with plyfile's bytes: a mesh with another element and both byte
-    orders; an element with a list of its own goes through plyfile."""
+    orders, its faces with and without their colour; an element with a list
+    of its own goes through plyfile."""
     from pcprep.meshlab_bridge.formats import ply
 
     g = np.random.default_rng(3)
     polys = [list(g.choice(60, m, replace=False)) for m in g.integers(3, 6, 300)]
     _mesh_ply(tmp_path / "in.ply", polys, order=order, edges=edges)
-    cloud = formats.read_cloud(tmp_path / "in.ply")
-    with pytest.raises(PointCloudError, match="faces carry red"):  # not lost silently
+    coloured = formats.read_cloud(tmp_path / "in.ply")
+    for cloud in (coloured, formats.drop_face_properties(coloured)):
         formats.write_cloud(cloud, tmp_path / "ours.ply")
-    assert not (tmp_path / "ours.ply").exists()
-    cloud = formats.drop_face_properties(cloud)
-    formats.write_cloud(cloud, tmp_path / "ours.ply")
-    cols = ply.vertex_columns(cloud)
-    face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
-    face["vertex_indices"] = cloud.faces
-    els = [PlyElement.describe(ply.vertex_rows(cols, {k: c.dtype for k, c in cols.items()}),
-                               "vertex"), PlyElement.describe(face, "face")]
-    els += list(cloud.meta["ply"]["other_elements"].values())
-    PlyData(els, byte_order=order).write(str(tmp_path / "plyfile.ply"))
-    assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "plyfile.ply").read_bytes()
-    back = formats.read_cloud(tmp_path / "ours.ply")
-    assert np.array_equal(back.faces, cloud.faces) and len(back.faces) > len(polys)
+        cols = ply.vertex_columns(cloud)
+        face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))]
+                        + [("red", "u1")] * bool(cloud.face_attributes))
+        face["vertex_indices"] = cloud.faces
+        if cloud.face_attributes:
+            face["red"] = cloud.face_attributes["red"]
+        els = [PlyElement.describe(ply.vertex_rows(cols, {k: c.dtype for k, c in cols.items()}),
+                                   "vertex"), PlyElement.describe(face, "face")]
+        els += list(cloud.meta["ply"]["other_elements"].values())
+        PlyData(els, byte_order=order).write(str(tmp_path / "plyfile.ply"))
+        assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "plyfile.ply").read_bytes()
+        back = formats.read_cloud(tmp_path / "ours.ply")
+        assert np.array_equal(back.faces, cloud.faces) and len(back.faces) > len(polys)
+    red = PlyData.read(str(tmp_path / "in.ply"))["face"]["red"]  # each polygon's, on its fan
+    assert np.array_equal(coloured.face_attributes["red"],
+                          np.repeat(red, [len(p) - 2 for p in polys]))
 
 
 @pytest.mark.parametrize("tiled", [[], ["--tiles", "20", "--workers", "1"]])
 def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
-    # PLY face colours (a binary mesh, read in blocks when tiled), OBJ texture
-    # coordinates and materials, OFF face colours: pcprep does not write them,
-    # so a write of the faces is refused, naming them, unless the user drops
-    # them (the faces stay) or the faces
+    # PLY face colours (a binary mesh, read in blocks when tiled) written to
+    # OBJ, OBJ texture coordinates and materials, OFF face colours: pcprep does
+    # not write them there, so a write of the faces is refused, naming them,
+    # unless the user drops them (the faces stay) or the faces
     tris = [[i, i + 1, i + 2] for i in range(58)]
-    _mesh_ply(tmp_path / "m.ply", tris)
+    v = np.array([tuple(p) for p in CLOUD_60], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    face = np.empty(len(tris), dtype=[("vertex_indices", "i4", (3,)), ("red", "u1")])
+    face["vertex_indices"], face["red"] = tris, 200
+    PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(face, "face")]).write(
+        str(tmp_path / "m.ply"))
     verts = "".join(f"v {x} {y} {z}\n" for x, y, z in CLOUD_60)
     (tmp_path / "m.obj").write_text(
         verts + "vt 0 0\nvt 1 0\nvt 0 1\nusemtl stone\n"
@@ -797,13 +820,15 @@ def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
     (tmp_path / "m.off").write_text(
         f"OFF\n60 {len(tris)} 0\n" + verts.replace("v ", "")
         + "".join(f"3 {a} {b} {c} 255 0 0\n" for a, b, c in tris))
-    carried = {"m.ply": "red", "m.obj": "texture coordinates, materials (usemtl)",
-               "m.off": "face colours"}
+    carried = {"m.ply": "red, which pcprep writes to .ply only",
+               "m.obj": "texture coordinates, materials (usemtl), which pcprep does not",
+               "m.off": "face colours, which pcprep does not"}
     for name, what in carried.items():
-        src, dst = tmp_path / name, tmp_path / ("out" + name[1:])
+        src = tmp_path / name
+        dst = tmp_path / ("from_ply.obj" if name == "m.ply" else "out" + name[1:])
         run = ["outliers", str(src), str(dst), "--std-ratio", "50", "--quiet", *tiled]
         assert main(run) == 1
-        assert f"faces carry {what}, which" in capsys.readouterr().err
+        assert f"faces carry {what}" in capsys.readouterr().err
         assert not dst.exists()
         assert main([*run, "--drop-face-properties"]) == 0
         out, one = formats.read_cloud(dst), formats.read_cloud(src)
@@ -1364,3 +1389,120 @@ def test_a_laz_write_that_fails_is_named_and_leaves_no_file(tmp_path, capsys, mo
     assert "pcprep: error: cannot write" in err and "Failed to call write" in err
     assert f"({out} has " in err and "MiB free)" in err and "Traceback" not in err
     assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_face_attributes_and_list_elements_keep_their_values_in_either_byte_order(
+        tmp_path, order):
+    # plyfile writes the scalars of an element with a list property in the
+    # machine's byte order; pcprep writes them in the file's, so a big-endian
+    # mesh's face quality and a path element's weight read back as written
+    v = np.zeros(5, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    v["x"] = np.arange(5)
+    face = np.empty(3, dtype=[("vertex_indices", "O"), ("quality", "f4"), ("id", "i4")])
+    face["vertex_indices"] = [np.array(t, "i4") for t in ([0, 1, 2], [1, 2, 3, 4], [0, 2, 4])]
+    face["quality"], face["id"] = [1.5, 2.25, -3.0], [7, 8, 9]
+    path = np.empty(2, dtype=[("vertex_list", "O"), ("weight", "f8")])
+    path["vertex_list"] = [np.array([0, 1], "i4"), np.array([2, 3, 4], "i4")]
+    path["weight"] = [0.5, 4.0]
+    PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(face, "face"),
+             PlyElement.describe(path, "path")]).write(str(tmp_path / "in.ply"))
+    cloud = formats.read_cloud(tmp_path / "in.ply")
+    info = {**cloud.meta["ply"], "byte_order": order}
+    formats.write_cloud(cloud.with_(meta={**cloud.meta, "ply": info}), tmp_path / "out.ply")
+    back = PlyData.read(str(tmp_path / "out.ply"))
+    assert back.byte_order == order
+    assert np.array_equal(back["face"]["quality"], [1.5, 2.25, 2.25, -3.0])  # the quad: 2
+    assert np.array_equal(back["face"]["id"], [7, 8, 8, 9])
+    assert np.array_equal(back["path"]["weight"], [0.5, 4.0])
+    assert [list(p) for p in back["path"]["vertex_list"]] == [[0, 1], [2, 3, 4]]
+
+
+def _textured_ply(path, text: bool, odd: bool = False):
+    """A mesh of 60 vertices, two triangles and a quad whose faces carry a
+    colour, a quality and texture coordinates (two per corner; with ``odd``
+    the quad's list holds 6 values, not 8)."""
+    v = np.array([tuple(p) for p in CLOUD_60], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    face = np.empty(3, dtype=[("vertex_indices", "O"), ("red", "u1"), ("quality", "f4"),
+                              ("texcoord", "O")])
+    face["vertex_indices"] = [np.array(t, "i4") for t in ([0, 1, 2], [3, 4, 5, 6], [7, 8, 9])]
+    face["red"], face["quality"] = [10, 20, 30], [0.5, 1.5, 2.5]
+    quad = np.arange(6 if odd else 8, dtype="f4") + 100
+    face["texcoord"] = [np.arange(6, dtype="f4"), quad, np.arange(6, dtype="f4") + 200]
+    PlyData([PlyElement.describe(v, "vertex"),
+             PlyElement.describe(face, "face", val_types={"texcoord": "f4"})],
+            text=text).write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_face_attributes_are_kept_on_each_triangle(tmp_path, text):
+    # a polygon's colour and quality on each triangle of its fan, its texture
+    # coordinates split by corner (v0, vj, vj+1); written back with the
+    # input's types, and cut with the faces by a removal
+    src = _textured_ply(tmp_path / "in.ply", text)
+    cloud = formats.read_cloud(src)
+    assert np.array_equal(cloud.faces, [[0, 1, 2], [3, 4, 5], [3, 5, 6], [7, 8, 9]])
+    assert np.array_equal(cloud.face_attributes["red"], [10, 20, 20, 30])
+    assert np.array_equal(cloud.face_attributes["quality"], [0.5, 1.5, 1.5, 2.5])
+    q = 100 + np.arange(8)  # the quad's corners 0..3, two values each
+    assert np.array_equal(cloud.face_attributes["texcoord"], [
+        np.arange(6), [*q[0:2], *q[2:4], *q[4:6]], [*q[0:2], *q[4:6], *q[6:8]],
+        200 + np.arange(6)])
+    formats.write_cloud(cloud, tmp_path / "out.ply")
+    back = PlyData.read(str(tmp_path / "out.ply"))
+    assert [(p.name, str(p)) for p in back["face"].properties] == [
+        ("vertex_indices", "property list uchar int vertex_indices"),
+        ("red", "property uchar red"), ("quality", "property float quality"),
+        ("texcoord", "property list uchar float texcoord")]
+    again = formats.read_cloud(tmp_path / "out.ply")
+    for k, v in cloud.face_attributes.items():
+        assert np.array_equal(again.face_attributes[k], v) and again.face_attributes[k].dtype == v.dtype
+    keep = np.setdiff1d(np.arange(60), [4])  # vertex 4 goes: the quad's first triangle with it
+    cut = cloud.subset(keep)
+    assert np.array_equal(cut.face_attributes["red"], [10, 20, 30])
+    assert np.array_equal(cut.face_attributes["texcoord"], cloud.face_attributes["texcoord"][[0, 2, 3]])
+    pts = np.asarray(CLOUD_60, np.float64)
+    far = np.vstack([pts, [[1e6, 1e6, 1e6]]])  # a far point the outlier filter removes
+    v = np.array([tuple(p) for p in far], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    f = PlyData.read(str(src))["face"]
+    PlyData([PlyElement.describe(v, "vertex"), f], text=text).write(str(tmp_path / "far.ply"))
+    assert main(["outliers", str(tmp_path / "far.ply"), str(tmp_path / "kept.ply"),
+                 "--quiet"]) == 0
+    kept = formats.read_cloud(tmp_path / "kept.ply")
+    assert len(kept) == 60 and np.array_equal(kept.faces, cloud.faces)
+    for k, v in cloud.face_attributes.items():
+        assert np.array_equal(kept.face_attributes[k], v)
+
+
+def test_a_face_list_that_is_not_per_corner_is_refused_then_dropped(tmp_path):
+    src = _textured_ply(tmp_path / "in.ply", False, odd=True)
+    cloud = formats.read_cloud(src)
+    assert cloud.meta["face_properties"] == ("texcoord",)
+    assert list(cloud.face_attributes) == ["red", "quality"]
+    run = ["denoise", str(src), str(tmp_path / "out.ply"), "--quiet"]
+    with pytest.raises(PointCloudError, match="faces carry texcoord, which pcprep does not"):
+        formats.write_cloud(cloud, tmp_path / "out.ply")
+    assert main(run) == 1 and not (tmp_path / "out.ply").exists()
+    assert main([*run, "--drop-face-properties"]) == 0
+    out = formats.read_cloud(tmp_path / "out.ply")
+    assert len(out.faces) == 4 and not out.face_attributes
+
+
+@pytest.mark.parametrize("quad", [False, "all"])
+def test_a_tiled_run_keeps_face_attributes_as_one_piece_does(tmp_path, quad):
+    # the faces' colour and quality stream from the memory-mapped face rows
+    # beside their triangles: the same file as the one-piece run's
+    src = _mesh_float32(tmp_path / "in.ply", 3000, "<", edges=False, quad=quad, props=True)
+    for name, tiled in (("one.ply", []), ("tiled.ply", ["--tiles", "400", "--workers", "1"])):
+        assert main(["outliers", str(src), str(tmp_path / name), "--method", "radius",
+                     "--radius", "1.0", "--quiet", *tiled]) == 0
+    one = (tmp_path / "one.ply").read_bytes()
+    assert (tmp_path / "tiled.ply").read_bytes() == one
+    out, cloud = formats.read_cloud(tmp_path / "one.ply"), formats.read_cloud(src)
+    assert 0 < len(out) < len(cloud)
+    keep = np.flatnonzero(np.isin(cloud.points[:, 0], out.points[:, 0]))
+    ref = cloud.subset(keep)
+    assert len(ref.faces) and np.array_equal(out.faces, ref.faces)
+    for k in ("red", "quality"):
+        assert np.array_equal(out.face_attributes[k], ref.face_attributes[k])

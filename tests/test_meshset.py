@@ -204,3 +204,60 @@ def _camera():
     cam = np.zeros(1, dtype=[("focal", "f4")])
     cam["focal"] = 35.0
     return PlyElement.describe(cam, "camera")
+
+
+def test_face_attributes_ride_through_meshlab_and_pcprep_filters(part, tmp_path, monkeypatch):
+    # a PLY's face colour, quality and texture coordinates become custom face
+    # attributes of the layer: MeshLab's filters and pcprep's removal and new
+    # layer carry them with their faces, and the save writes them back in
+    # their types; one the layer lost is named, not dropped without a word
+    from scipy.spatial import Delaunay
+
+    from pcprep.meshlab_bridge import apply as _apply
+
+    pts = part.points.copy()
+    tri = Delaunay(pts[:, :2]).simplices.astype(np.int64)
+    g = np.random.default_rng(5)
+    values = {"red": (np.arange(len(tri)) % 256).astype(np.uint8),
+              "quality": g.random(len(tri)).astype(np.float32),
+              "texcoord": g.random((len(tri), 6)).astype(np.float32)}
+    pts[:3] += 50.0 * part.normals[:3]  # three far points the outlier filter removes
+    src = tmp_path / "mesh.ply"
+    save_cloud(Cloud(pts, faces=tri, face_attributes=values), str(src))
+    cloud = load_cloud(str(src))
+    ms = pcprep.MeshSet()
+    ms.load_new_mesh(str(src))
+    ms.meshing_invert_face_orientation()  # MeshLab's: the faces' order and values stay
+    ms.save_current_mesh(str(tmp_path / "same.ply"))
+    same = load_cloud(str(tmp_path / "same.ply"))
+    assert np.array_equal(same.faces, cloud.faces[:, [1, 0, 2]])
+    for k, v in cloud.face_attributes.items():
+        assert np.array_equal(v, values[k])
+        assert np.array_equal(same.face_attributes[k], v) and same.face_attributes[k].dtype == v.dtype
+    out = ms.apply_filter("meshing_remove_point_outliers")
+    assert out["removed"] >= 3
+    ms.save_current_mesh(str(tmp_path / "removed.ply"))
+    got = load_cloud(str(tmp_path / "removed.ply"))
+    keep = np.flatnonzero(np.isin(pts, got.points).all(axis=1))
+    ref = same.subset(keep)
+    assert len(got.faces) == len(ref.faces) < len(tri)
+    for k, v in ref.face_attributes.items():
+        assert np.array_equal(got.face_attributes[k], v)
+    for lose in (False, True):
+        ms = pcprep.MeshSet()
+        ms.load_new_mesh(str(src))
+        if lose:  # a layer that did not keep them: refused, naming them
+            monkeypatch.setattr(_apply, "_kept_face_values", lambda *a: {})
+        ms.apply_filter("generate_simplified_point_cloud_sdbs", ratio=0.5)
+        dst = tmp_path / f"simple{lose}.ply"
+        if lose:
+            with pytest.raises(pcprep.PointCloudError, match="faces carry red, quality, texcoord"):
+                ms.save_current_mesh(str(dst))
+            assert not dst.exists()
+            continue
+        ms.save_current_mesh(str(dst))
+        simple = load_cloud(str(dst))
+        ref = cloud.subset(np.flatnonzero(np.isin(pts, simple.points).all(axis=1)))
+        assert np.array_equal(simple.faces, ref.faces) and len(ref.faces)
+        for k, v in ref.face_attributes.items():
+            assert np.array_equal(simple.face_attributes[k], v)

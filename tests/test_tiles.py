@@ -1276,7 +1276,7 @@ def test_cli_info_of_a_mesh_is_the_whole_read(tmp_path, capsys, ext):
 
 
 def test_cli_info_names_what_faces_carry(tmp_path, capsys):
-    # the face colour a write would refuse to lose, in blocks as whole
+    # the face colour a write keeps, in blocks as whole
     import plyfile
 
     from pcprep.meshlab_bridge.formats import stream
@@ -1289,5 +1289,5 @@ def test_cli_info_names_what_faces_carry(tmp_path, capsys):
                      plyfile.PlyElement.describe(face, "face")]).write(str(src))
     assert stream._block_reader(str(src)) is not None
     whole = _info(capsys, str(src))
-    assert "faces: 2 (carrying red, which pcprep does not write)" in whole
+    assert "faces: 2 (with red)" in whole
     assert _info(capsys, str(src), "--tiles", "100", "--workers", "1") == whole

@@ -204,7 +204,7 @@ def check_kept(cloud: Cloud, path: str) -> None:
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
     check_faces(0 if cloud.faces is None else len(cloud.faces), path,
-                cloud.meta.get("face_properties", ()))
+                cloud.meta.get("face_properties", ()), tuple(cloud.face_attributes))
     info = cloud.meta.get("ply", {})
     others = list(info.get("other_elements", {}).values())
     if others:
@@ -239,16 +239,18 @@ def drop_elements(cloud: Cloud) -> Cloud:
     return cloud.with_(meta={**cloud.meta, "ply": {**info, "other_elements": {}}})
 
 
-def check_faces(count: int, path, properties=()) -> None:
+def check_faces(count: int, path, properties=(), kept=()) -> None:
     """Refuse to write ``count`` faces to a format that stores points alone
-    (LAS, LAZ, PCD, XYZ, E57), and faces that carry ``properties`` (what the
-    reader found on the faces besides their vertices: PLY face colours,
-    texture coordinates, …; OBJ texture coordinates and materials; OFF face
-    colours), which pcprep does not write: either would lose part of the
-    mesh without a word.  Dropping them is the user's call, made explicitly
-    (``--drop-faces``, ``--drop-face-properties``, MeshLab's Remove All
-    Faces, or in Python ``cloud.with_(faces=None)`` and
-    ``drop_face_properties(cloud)``)."""
+    (LAS, LAZ, PCD, XYZ, E57); faces that carry ``properties`` (what the
+    reader found on the faces besides their vertices and could not keep:
+    OBJ texture coordinates and materials, OFF face colours, a PLY list
+    whose length is not a number of values per corner); and faces with the
+    attributes ``kept`` (``Cloud.face_attributes``: PLY face colours,
+    quality, texture coordinates, …) to a format other than PLY, which
+    pcprep writes them to: each would lose part of the mesh without a word.
+    Dropping them is the user's call, made explicitly (``--drop-faces``,
+    ``--drop-face-properties``, MeshLab's Remove All Faces, or in Python
+    ``cloud.with_(faces=None)`` and ``drop_face_properties(cloud)``)."""
     ext = _ext(path)
     if not count:
         return
@@ -258,18 +260,22 @@ def check_faces(count: int, path, properties=()) -> None:
             f"would lose the input's {count} faces; write .ply, .obj or .off to keep them, "
             "or drop them explicitly (CLI: --drop-faces; MeshLab: Remove All Faces, "
             "meshing_remove_all_faces; Python: cloud.with_(faces=None))")
-    if properties:
+    lost = list(properties) + (list(kept) if ext != ".ply" else [])
+    if lost:
+        why = ("which pcprep does not keep" if properties
+               else f"which pcprep writes to .ply only, not to {ext}")
         raise PointCloudError(
             f"cannot write {os.fspath(path)!r}: the input's faces carry "
-            f"{', '.join(properties)}, which pcprep does not keep; drop them explicitly to "
+            f"{', '.join(lost)}, {why}; drop them explicitly to "
             "write the faces without them (CLI: --drop-face-properties; Python: "
             "formats.drop_face_properties(cloud)), or the vertices alone (--drop-faces)")
 
 
 def drop_face_properties(cloud: Cloud) -> Cloud:
-    """``cloud`` whose faces are to be written without the properties the
-    reader found on them (``check_faces``); the faces themselves stay."""
-    return cloud.with_(meta={**cloud.meta, "face_properties": ()})
+    """``cloud`` whose faces are to be written without what the reader found
+    on them (``check_faces``): its face attributes and the properties it
+    could not keep; the faces themselves stay."""
+    return cloud.with_(meta={**cloud.meta, "face_properties": ()}, face_attributes={})
 
 
 def write_cloud(cloud: Cloud, path, *, needs: tuple[str, ...] = ()) -> None:

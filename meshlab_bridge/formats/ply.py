@@ -16,7 +16,9 @@ parsed and written by NumPy in blocks, with plyfile's values and bytes
 10⁶-row file, NumPy 3.8 and 4.7 µs).  A binary mesh of triangles has its
 faces memory-mapped too, and written as records, again plyfile's bytes
 (its list rows cost about 4 µs a face each way).  Faces are read as
-triangles: a polygon becomes the fan of triangles from its first vertex.
+triangles: a polygon becomes the fan of triangles from its first vertex,
+and its other properties go to ``Cloud.face_attributes`` on each triangle
+(``face_values``).
 """
 
 from __future__ import annotations
@@ -60,9 +62,10 @@ def read(path: str) -> Cloud:
         return vertex_cloud(rows, ply, path, count)
     ply = load(path)
     cloud = vertex_cloud(np.array(ply["vertex"].data), ply, path)  # from the memmap
-    faces = _faces(ply, len(cloud), path)
+    faces, values, unkept = _faces(ply, len(cloud), path)
     cloud.meta["ply"]["other_elements"] = {el.name: el for el in _other_elements(ply)}
-    return cloud.with_(faces=faces)
+    cloud.meta["face_properties"] = unkept
+    return cloud.with_(faces=faces, face_attributes=values)
 
 
 def load(path: str):
@@ -172,22 +175,31 @@ def vertex_cloud(data: np.ndarray, ply, path: str, count: int | None = None) -> 
         "text": bool(ply.text), "byte_order": ply.byte_order,
         "comments": list(ply.comments), "obj_info": list(ply.obj_info),
         "types": {n: data.dtype[n].str for n in names}, "order": names,
-        "other_elements": {},
+        "other_elements": {}, "face_types": face_types(ply),
         "n_vertices": ply["vertex"].count if count is None else count},
-        "face_properties": face_properties(ply)}
+        "face_properties": ()}
     return Cloud(pts, normals, colors, quality, None, attrs, os.path.basename(path), meta)
 
 
-def face_properties(ply) -> tuple[str, ...]:
+def face_types(ply) -> dict:
     """The face element's properties besides its vertex-index list (colours,
-    quality, texture coordinates, …), which pcprep reads past and does not
-    write: a write of the faces refuses to lose them unless asked
-    (``formats.check_faces``)."""
+    quality, flags, texture coordinates, …) by name, in file order: a scalar's
+    type, or a list's ``(count type, value type)``, the types ``write``
+    restores where the values fit them.  Empty for a file without faces."""
     if "face" not in ply or ply["face"].count == 0:
-        return ()
-    key = _face_key(ply["face"])
-    return () if key is None else tuple(p.name for p in ply["face"].properties
-                                        if p.name != key)
+        return {}
+    el = ply["face"]
+    key = _face_key(el)
+    if key is None:
+        return {}
+    return {p.name: (p.len_dtype, p.val_dtype) if _is_list(p) else p.val_dtype
+            for p in el.properties if p.name != key}
+
+
+def _is_list(prop) -> bool:
+    from plyfile import PlyListProperty
+
+    return isinstance(prop, PlyListProperty)
 
 
 def ascii_header(path: str):
@@ -324,17 +336,89 @@ def _check_ascii_rows(path: str, ply) -> None:
             f"holds {rows}")
 
 
-def _faces(ply, n: int, path: str) -> np.ndarray | None:
+def _faces(ply, n: int, path: str):
+    """``(triangles, values, unkept)`` of ``ply``'s face element: the fan of
+    each polygon (``fan_triangles``; None without faces), each other face
+    property on the triangles (``face_values``) and the names of those that
+    cannot be (``formats.check_faces`` refuses to lose them)."""
     if "face" not in ply or ply["face"].count == 0:
-        return None
+        return None, {}, ()
     el = ply["face"]
     key = _face_key(el)
     if key is None:
-        return None
-    faces = fan_triangles(el.data[key])
+        return None, {}, ()
+    polygons = el.data[key]
+    faces = fan_triangles(polygons)
     if len(faces) and (faces.min() < 0 or faces.max() >= n):
         raise _missing_vertex(path, int(faces.max()), n)
-    return faces
+    sizes = _sizes(polygons)
+    values, unkept = {}, []
+    for p in el.properties:
+        if p.name == key:
+            continue
+        v = face_values(el.data[p.name], sizes, _is_list(p))
+        if v is None:
+            unkept.append(p.name)
+        else:
+            values[p.name] = v
+    if not len(faces):
+        return None, {}, ()
+    return faces, values, tuple(unkept)
+
+
+def _sizes(polygons) -> np.ndarray:
+    """The vertex count of each of ``polygons`` (``fan_triangles``' input)."""
+    polygons = np.asarray(polygons)
+    if polygons.dtype != object:
+        return np.full(len(polygons), polygons.reshape(len(polygons), -1).shape[1], np.int64)
+    return np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+
+
+def face_values(values, sizes: np.ndarray, is_list: bool):
+    """One face property of polygons of ``sizes`` vertices on the triangles
+    ``fan_triangles`` makes of them, row t for triangle t: a scalar repeated
+    on each triangle of its polygon's fan; a list of c values per corner (a
+    polygon of m vertices holds c·m; texture coordinates, c = 2) as the
+    3c values of each triangle's corners (v₀, v_j, v_j+1), so a triangle
+    mesh's lists are kept as they are.  None for a list of another length,
+    which has no meaning per triangle that pcprep could know."""
+    n_tri = np.maximum(sizes - 2, 0)
+    if not is_list:
+        values = np.asarray(values)
+        return values.copy() if (n_tri == 1).all() else np.repeat(values, n_tri)
+    values = np.asarray(values)
+    if values.dtype != object:  # memory-mapped lists of one length
+        values = values.reshape(len(values), -1)
+        lengths = np.full(len(values), values.shape[1], np.int64)
+    else:
+        lengths = np.fromiter(map(len, values), dtype=np.int64, count=len(values))
+    if not len(values):
+        return None
+    c = int(lengths[0] // sizes[0]) if sizes[0] else 0
+    if not (lengths == c * sizes).all():
+        return None
+    if values.dtype == object:
+        flat = (np.concatenate(values) if lengths.sum() else
+                np.empty(0, np.asarray(values[0]).dtype))
+    else:
+        flat = values.reshape(-1)
+    if (sizes == 3).all():
+        return flat.reshape(len(values), 3 * c).copy()
+    corners = _fan_corners(sizes)
+    cols = (c * corners)[:, :, None] + np.arange(c)
+    return flat[cols.reshape(len(corners), 3 * c)]
+
+
+def _fan_corners(sizes: np.ndarray) -> np.ndarray:
+    """(t, 3) places, among all corners of polygons of ``sizes`` vertices
+    listed one polygon after another, of the corners of each triangle of
+    their fans (``fan_triangles``)."""
+    first = np.cumsum(sizes) - sizes  # each polygon's first corner
+    n_tri = np.maximum(sizes - 2, 0)
+    owner = np.repeat(np.arange(len(sizes)), n_tri)
+    j = np.arange(n_tri.sum()) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    base = first[owner]
+    return np.stack([base, base + j, base + j + 1], axis=1)
 
 
 def indexes_vertices(el) -> bool:
@@ -388,12 +472,7 @@ def fan_triangles(polygons) -> np.ndarray:
     sizes = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
     flat = (np.concatenate(polygons).astype(np.int64, copy=False) if len(polygons)
             else np.empty(0, np.int64))
-    first = np.cumsum(sizes) - sizes  # each polygon's first index in ``flat``
-    n_tri = np.maximum(sizes - 2, 0)
-    owner = np.repeat(np.arange(len(polygons)), n_tri)
-    j = np.arange(n_tri.sum()) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
-    base = first[owner]
-    return np.stack([flat[base], flat[base + j], flat[base + j + 1]], axis=1)
+    return flat[_fan_corners(sizes)]
 
 
 def _fits(values: np.ndarray, dtype: np.dtype) -> bool:
@@ -426,12 +505,14 @@ def write(cloud: Cloud, path: str) -> None:
     cols = vertex_columns(cloud)
     vertex = vertex_rows(cols, {n: v.dtype for n, v in cols.items()})
     elements = [PlyElement.describe(vertex, "vertex")]
-    if cloud.faces is not None and len(cloud.faces):
-        face = np.empty(len(cloud.faces), dtype=[("vertex_indices", "i4", (3,))])
-        face["vertex_indices"] = cloud.faces
-        elements.append(PlyElement.describe(face, "face"))
     info = cloud.meta.get("ply", {})
-    elements += kept_elements(info.get("other_elements", {}).values(), len(cloud), info)
+    face = None
+    if cloud.faces is not None and len(cloud.faces):
+        layout = face_layout(cloud.face_attributes, info)
+        face = face_element(face_rows(cloud.faces, cloud.face_attributes, layout), layout)
+        elements.append(face)
+    others = kept_elements(info.get("other_elements", {}).values(), len(cloud), info)
+    elements += others
     if info.get("text") and len(elements) == 1:  # plyfile's bytes, by NumPy
         with open(path, "wb") as f:
             f.write(header({n: v.dtype for n, v in cols.items()}, len(vertex), info))
@@ -440,10 +521,10 @@ def write(cloud: Cloud, path: str) -> None:
                                   {n: vertex.dtype[n] for n in cols}))
         return
     data = _ply_data(elements, info)
-    if data.text or any(_has_list(el) for el in elements[1:] if not _is_triangles(el)):
+    if data.text:
         data.write(path)
     else:
-        _write_binary(data, path)
+        _write_binary(data, path, face)
 
 
 def _has_list(el) -> bool:
@@ -452,38 +533,106 @@ def _has_list(el) -> bool:
     return any(isinstance(p, PlyListProperty) for p in el.properties)
 
 
-def _is_triangles(el) -> bool:
-    """``el`` is the face element ``write`` makes (not another element of
-    the file named ``face``, which is written as it was read)."""
-    return el.name == "face" and el.data.dtype.names == ("vertex_indices",)
-
-
-def _write_binary(data, path: str) -> None:
-    """The bytes ``data.write(path)`` gives for a binary PLY whose one list
-    property is the triangles' ``vertex_indices`` (count ``uchar`` 3, indices
-    ``int``): plyfile writes a list property row by row in Python (about
-    4 µs a face here), so the faces are written as records
-    (``triangle_records``); every other element as plyfile writes it."""
+def _write_binary(data, path: str, face=None) -> None:
+    """The binary PLY ``data`` with plyfile's header and layout.  plyfile
+    writes an element with a list property row by row in Python (about
+    4 µs a face here), and writes that element's scalar properties in the
+    machine's byte order whatever the file's (plyfile 1.1: a big-endian
+    file's face colours and qualities come back wrong), so the triangles
+    ``face`` (``face_element``) are written as records (``face_records``),
+    another element with a list row by row in the file's byte order
+    (``list_element_bytes``), the others as records (``element_bytes``)."""
     order = data.byte_order
     with open(path, "wb") as f:
         f.write(data.header.encode("ascii") + b"\n")
         for el in data.elements:
-            if _is_triangles(el):
-                tri = el.data["vertex_indices"]
-                for s in range(0, len(tri), TEXT_BLOCK):
-                    f.write(triangle_records(tri[s:s + TEXT_BLOCK], order))
+            if el is face:
+                for s in range(0, len(el.data), TEXT_BLOCK):
+                    f.write(face_records(el.data[s:s + TEXT_BLOCK], el, order))
+            elif _has_list(el):
+                f.write(list_element_bytes(el, order))
             else:
                 f.write(element_bytes(el, order))
 
 
-def triangle_records(tri: np.ndarray, order: str) -> memoryview:
-    """The rows plyfile writes for these (m, 3) triangles as the list
-    property ``vertex_indices`` (count ``uchar`` 3, indices ``int``) in byte
-    order ``order``."""
-    rows = np.empty(len(tri), dtype=[("n", "u1"), ("v", order + "i4", (3,))])
-    rows["n"] = 3
-    rows["v"] = tri
-    return rows.data
+def list_element_bytes(el, order: str) -> bytes:
+    """The rows of an element with list properties, one after another, each
+    value in byte order ``order``: a list as its count, then its values."""
+    out = io.BytesIO()
+    props = [(p.name, p.list_dtype(order) if _is_list(p) else p.dtype(order))
+             for p in el.properties]
+    for rec in el.data:
+        for name, kind in props:
+            if isinstance(kind, tuple):
+                v = np.asarray(rec[name], dtype=kind[1]).ravel()
+                out.write(np.array(v.size, dtype=kind[0]).tobytes())
+                out.write(v.tobytes())
+            else:
+                out.write(np.array(rec[name], dtype=kind).tobytes())
+    return out.getvalue()
+
+
+def face_layout(values: dict, info: dict) -> tuple[list, dict]:
+    """The face rows' structured type and each list's count type: the
+    triangles' ``vertex_indices`` (count ``uchar`` 3, indices ``int``), then
+    each face attribute of ``values`` in the type the input had
+    (``face_types``) where its values fit it exactly, else float64 (for
+    floats) or their own; an (f, k) attribute is a list of k values."""
+    fields, len_types = [("vertex_indices", "i4", (3,))], {"vertex_indices": "u1"}
+    types = info.get("face_types", {})
+    for name, v in values.items():
+        v = np.asarray(v)
+        original = types.get(name)
+        if v.ndim == 1:
+            fields.append((name, _column(v, None if isinstance(original, (list, tuple))
+                                         else original).dtype.str))
+            continue
+        count, val = original if isinstance(original, (list, tuple)) else ("u1", None)
+        if np.iinfo(np.dtype(count)).max < v.shape[1]:
+            count = "u4"
+        fields.append((name, _column(v, val).dtype.str, (v.shape[1],)))
+        len_types[name] = np.dtype(count).str.lstrip("<>|=")
+    return fields, len_types
+
+
+def face_rows(tri, values: dict, layout) -> np.ndarray:
+    """The structured face rows of triangles ``tri`` and their attributes
+    ``values`` in the type ``layout`` (``face_layout``) gives."""
+    rows = np.empty(len(tri), dtype=layout[0])
+    rows["vertex_indices"] = tri
+    for name, v in values.items():
+        rows[name] = v
+    return rows
+
+
+def face_element(rows, layout):
+    """plyfile's face element of ``rows`` (``face_rows``), or of that many
+    rows for a header when ``rows`` is a count (no rows are made)."""
+    from plyfile import PlyElement
+
+    if isinstance(rows, (int, np.integer)):
+        rows = np.broadcast_to(np.zeros(1, dtype=layout[0]), (int(rows),))
+    return PlyElement.describe(rows, "face", len_types=layout[1])
+
+
+def face_records(rows: np.ndarray, el, order: str) -> memoryview:
+    """The bytes plyfile writes for these face rows of element ``el``
+    (``face_element``) in byte order ``order``: each list property as its
+    count, then its values."""
+    fields, fill = [], []
+    for p in el.properties:
+        if _is_list(p):
+            length, value = p.list_dtype(order)
+            fields += [(p.name + "#", length), (p.name, value, rows.dtype[p.name].shape)]
+            fill.append((p.name + "#", rows.dtype[p.name].shape[0]))
+        else:
+            fields.append((p.name, p.dtype(order)))
+    out = np.empty(len(rows), dtype=fields)
+    for name, count in fill:
+        out[name] = count
+    for name in rows.dtype.names:
+        out[name] = rows[name]
+    return out.data
 
 
 def element_bytes(el, order: str) -> memoryview:
@@ -491,21 +640,11 @@ def element_bytes(el, order: str) -> memoryview:
     return el.data.astype(el.dtype(order), copy=False).data
 
 
-def triangle_element(count: int):
-    """plyfile's description of ``count`` triangles as ``ply.write`` writes
-    them (for a header: no rows are made)."""
-    from plyfile import PlyElement
-
-    shape = np.broadcast_to(np.zeros(1, dtype=[("vertex_indices", "i4", (3,))]), (count,))
-    return PlyElement.describe(shape, "face")
-
-
 def mesh_tail(ply, path: str):
     """What a binary PLY (``load``) holds besides its vertices, for a write in
-    blocks: ``(triangles, others)``, the faces as the memory-mapped (f, 3)
-    index rows, or memory-mapped quads fanned slice by slice (``_Fan``), the
-    triangles ``read`` makes of them (None without faces), and the other
-    elements in file order.  None where the file is read whole: a face element
+    blocks: ``(triangles, others)``, the memory-mapped faces as the triangles
+    ``read`` makes of them, with their other properties, slice by slice
+    (``_Fan``; None without faces), and the other elements in file order.  None where the file is read whole: a face element
     read row by row (faces of other or mixed sizes) or another element with a
     list property.  A face that refers to a vertex that does not exist is
     refused as ``read`` refuses it."""
@@ -527,45 +666,70 @@ def mesh_tail(ply, path: str):
         lo, hi = min(lo, int(part.min())), max(hi, int(part.max()))
     if lo < 0 or hi >= n:
         raise _missing_vertex(path, hi, n)
-    return (polygons if polygons.shape[1] == 3 else _Fan(polygons)), others
+    names = tuple(p.name for p in el.properties if p.name != key)  # scalars: lists refused
+    return _Fan(polygons, el.data, names), others
 
 
 class _Fan:
     """The triangles ``fan_triangles`` makes of (f, m) polygons (m ≥ 3, the
-    memory-mapped quads of a mesh read in blocks), made slice by slice:
-    triangle t is triangle t mod (m − 2) of polygon t div (m − 2)."""
+    memory-mapped faces of a mesh read in blocks), made slice by slice:
+    triangle t is triangle t mod (m − 2) of polygon t div (m − 2).
+    ``values(start, stop)`` gives those triangles' face attributes, the
+    scalar properties ``names`` of the face rows ``data``, as ``read`` gives
+    them (``face_values``)."""
 
-    def __init__(self, polygons: np.ndarray):
+    def __init__(self, polygons: np.ndarray, data=None, names: tuple = ()):
         self.polygons, self.per = polygons, polygons.shape[1] - 2
+        self.data, self.names = data, names
 
     def __len__(self) -> int:
         return len(self.polygons) * self.per
 
-    def __getitem__(self, key: slice) -> np.ndarray:
+    def _span(self, key: slice) -> tuple[int, int, int]:
         start, stop, step = key.indices(len(self))
         if step != 1:
             raise IndexError("_Fan: slices of step 1 only")
-        first = start // self.per
+        return start, max(start, stop), start // self.per
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        start, stop, first = self._span(key)
+        if self.per == 1:
+            return np.asarray(self.polygons[start:stop])
         tri = fan_triangles(self.polygons[first:-(-stop // self.per)])
         return tri[start - first * self.per:stop - first * self.per]
 
+    def values(self, start: int, stop: int) -> dict:
+        start, stop, first = self._span(slice(start, stop))
+        out = {}
+        for name in self.names:
+            v = np.asarray(self.data[name][first:-(-stop // self.per)])
+            v = np.repeat(v, self.per) if self.per > 1 else v
+            out[name] = v[start - first * self.per:stop - first * self.per]
+        return out
 
-def kept_triangles(tri: np.ndarray, kept, size: int = TEXT_BLOCK):
+    def without_values(self) -> "_Fan":
+        return _Fan(self.polygons)
+
+
+def kept_triangles(tri, kept, size: int = TEXT_BLOCK, values: bool = False):
     """(m, 3) int64 blocks of the triangles ``tri`` after a removal that kept
     the rows ``kept`` (increasing indices; None: every row): each triangle
     whose three vertices are kept, renumbered to the kept rows' order, as
     ``Cloud.subset`` renumbers them, found by binary search in ``kept`` (no
-    map of the input's length)."""
+    map of the input's length).  With ``values``, ``(block, attributes)``
+    pairs, the kept triangles' face attributes (``_Fan.values``) beside them."""
     for s in range(0, len(tri), size):
         part = np.asarray(tri[s:s + size], dtype=np.int64)
+        vals = tri.values(s, s + size) if values else None
         if kept is None:
-            yield part
+            yield (part, vals) if values else part
             continue
         if len(kept) == 0:
             return
         pos = np.searchsorted(kept, part)
         found = np.asarray(kept[np.minimum(pos, len(kept) - 1)]) == part
-        yield pos[found.all(axis=1)]
+        whole = found.all(axis=1)
+        yield (pos[whole], {k: v[whole] for k, v in vals.items()}) if values else pos[whole]
 
 
 def _ply_data(elements, info: dict):

@@ -284,7 +284,7 @@ def _check_tail(src: str, dst: str, drop_faces: bool, drop_face_properties: bool
     elements are in its ``mesh_tail``, not in the blocks), and
     ``check_elements`` where ``dst`` is not a PLY; returns that tail,
     without the faces or elements dropped."""
-    from . import check_elements, check_faces, ply
+    from . import check_elements, check_faces
 
     tail = mesh_tail(src)
     if tail is None:
@@ -296,8 +296,8 @@ def _check_tail(src: str, dst: str, drop_faces: bool, drop_face_properties: bool
         check_elements([el.name for el in others], dst)
     if tri is None or drop_faces:
         return None, others
-    props = () if drop_face_properties else ply.face_properties(_ply_mmap(src))
-    check_faces(len(tri), dst, props)
+    tri = tri.without_values() if drop_face_properties else tri
+    check_faces(len(tri), dst, (), tri.names)  # a mesh read in blocks keeps them all
     return tri, others
 
 
@@ -505,7 +505,8 @@ def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
     tri, others = (None, []) if tail is None else tail
     kept = None if keep is None else keep.idx
     faces = 0 if tri is None else sum(len(b) for b in ply.kept_triangles(tri, kept))
-    elements = [ply.triangle_element(faces)] if faces else []
+    face_layout = None if tri is None else ply.face_layout(tri.values(0, 0), info)
+    elements = [ply.face_element(faces, face_layout)] if faces else []
     from . import check_elements
 
     check_elements([el.name for el in others
@@ -527,8 +528,9 @@ def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
             written += len(out)
         order = info.get("byte_order", "<")
         if faces:
-            for block in ply.kept_triangles(tri, kept):
-                f.write(ply.triangle_records(block, order))
+            for block, values in ply.kept_triangles(tri, kept, values=True):
+                f.write(ply.face_records(ply.face_rows(block, values, face_layout),
+                                         elements[0], order))
         for el in others:
             f.write(ply.element_bytes(el, order))
     return written
