@@ -91,12 +91,13 @@ def _add_drop_options(p, result: str) -> None:
     p.add_argument("--drop-face-properties", action="store_true",
                    help=f"write {result}'s faces without what they carry besides their "
                         "vertices (face colours, texture coordinates, materials): needed "
-                        "where pcprep cannot keep it (OBJ materials, OFF face colours, "
-                        "PLY face properties written to OBJ or OFF)")
+                        "where pcprep cannot keep it (OBJ materials, OFF colour-map "
+                        "indices, face properties written to OBJ, all but a colour to OFF)")
     p.add_argument("--drop-elements", action="store_true",
                    help=f"write {result} without the input PLY's elements besides its "
-                        "vertices and faces (edges, cameras, …), which a removal would "
-                        "leave pointing at the wrong rows and other formats cannot hold")
+                        "vertices and faces (edges, cameras, range grids, …), which other "
+                        "formats cannot hold and a removal would leave a range grid "
+                        "pointing at the wrong rows")
 
 
 def _add_scale_options(p, same: str) -> None:

@@ -77,10 +77,15 @@ class Cloud:
             if whole.any():
                 faces = f[whole]
                 face_attrs = {k: v[whole] for k, v in self.face_attributes.items()}
+        meta = self.meta
+        info = meta.get("ply", {})
+        if info.get("other_elements"):  # which input rows remain: the writer renumbers edges
+            rows = info.get("kept_rows")
+            meta = {**meta, "ply": {**info, "kept_rows": idx if rows is None else rows[idx]}}
         return replace(self, points=self.points[idx], normals=take(self.normals),
                        colors=take(self.colors), quality=take(self.quality), faces=faces,
                        attributes={k: v[idx] for k, v in self.attributes.items()},
-                       face_attributes=face_attrs)
+                       face_attributes=face_attrs, meta=meta)
 
     def __post_init__(self):
         count = 0 if self.faces is None else len(self.faces)

@@ -68,6 +68,7 @@ class MeshSet(pymeshlab.MeshSet):
             spec = registry.get(filter_name)
             source = self.current_mesh_id()
             attrs, meta, faces = self._layers.get(source, ({}, {}, {}))
+            count = self.current_mesh().vertex_number()
             self._busy = True
             try:
                 columns = tuple(c for k, (_, w) in faces.items()
@@ -78,6 +79,9 @@ class MeshSet(pymeshlab.MeshSet):
                 self._busy = False
                 self.clear_filter_script()  # the MeshLab steps pcprep used internally
             added = {k: np.dtype(np.float64) for k in out["attributes"]}
+            if spec.kind in ("remove", "new_layer"):
+                meta = _kept_rows(meta, count,
+                                  np.asarray(getattr(out["result"], spec.index_field)))
             self._layers[out["mesh_id"]] = ({**attrs, **added}, meta, faces)
             self._record.append(_pcprep_element(spec, out["params"]))
             return out
@@ -209,6 +213,24 @@ class MeshSet(pymeshlab.MeshSet):
 
     def clear_recorded_script(self) -> None:
         self._record = []
+
+
+def _kept_rows(meta: dict, count: int, idx: np.ndarray) -> dict:
+    """A layer's file ``meta`` after a pcprep removal that kept rows ``idx``
+    of its ``count`` vertices: the file's rows that remain
+    (``info["kept_rows"]``, as ``Cloud.subset`` records them), so that the
+    save renumbers the PLY's edges (``ply.kept_elements``).  Recorded only
+    where the layer still held the rows pcprep last knew of; after a MeshLab
+    filter that changed them, the rows are not known and the save refuses
+    to write the edges wrong (``formats.check_elements``)."""
+    info = meta.get("ply", {})
+    if not info.get("other_elements"):
+        return meta
+    rows = info.get("kept_rows")
+    if count != (info.get("n_vertices") if rows is None else len(rows)):
+        return {**meta, "ply": {**info, "kept_rows": None}}
+    idx = np.asarray(idx, dtype=np.int64)
+    return {**meta, "ply": {**info, "kept_rows": idx if rows is None else rows[idx]}}
 
 
 def _restore(values: np.ndarray, dtype: np.dtype) -> np.ndarray:

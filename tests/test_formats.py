@@ -255,20 +255,16 @@ def test_streamed_mesh_is_the_file_written_whole(tmp_path, monkeypatch, name, or
     removal = spec.kind in ("remove", "new_layer")
     assert (len(out.faces) < len(cloud.faces)) == removal
     whole, streamed = tmp_path / "whole.ply", tmp_path / "streamed.ply"
-    if removal:  # the edges would refer to removed rows: refused, unless dropped
-        for write in (lambda: formats.write_cloud(out, whole),
-                      lambda: stream.write_streamed(spec, src, streamed, fields, size=700)):
-            with pytest.raises(PointCloudError, match=r"element\(s\) edge refer"):
-                write()
-        assert not whole.exists() and not streamed.exists()
-        out = formats.drop_elements(out)
     formats.write_cloud(out, whole)
     with monkeypatch.context() as m:
         m.setattr(stream, "read_cloud", lambda *a: pytest.fail("read whole"))
-        assert stream.write_streamed(spec, src, streamed, fields, size=700,
-                                     drop_elements=removal) == len(out)
+        assert stream.write_streamed(spec, src, streamed, fields, size=700) == len(out)
     assert streamed.read_bytes() == whole.read_bytes()
-    assert (b"element edge 5" in whole.read_bytes()[:2000]) == (not removal)
+    kept = np.asarray(fields[spec.index_field]) if removal else np.arange(len(cloud))
+    ends = [np.isin(np.arange(5) + j, kept) for j in (0, 1)]  # edges (j, j + 1), j < 5
+    edge = PlyData.read(str(whole))["edge"]  # renumbered, those with a removed end left out
+    assert np.array_equal(kept[edge["vertex1"]], np.flatnonzero(ends[0] & ends[1]))
+    assert np.array_equal(kept[edge["vertex2"]], np.flatnonzero(ends[0] & ends[1]) + 1)
     back = formats.read_cloud(streamed)
     assert list(back.face_attributes) == ["red", "quality"]
     for k, v in out.face_attributes.items():
@@ -803,10 +799,11 @@ def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
 
 @pytest.mark.parametrize("tiled", [[], ["--tiles", "20", "--workers", "1"]])
 def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
-    # PLY face colours (a binary mesh, read in blocks when tiled) written to
-    # OBJ, OBJ texture coordinates and materials, OFF face colours: pcprep does
-    # not write them there, so a write of the faces is refused, naming them,
-    # unless the user drops them (the faces stay) or the faces
+    # PLY face colours (a binary mesh, read in blocks when tiled) and OFF
+    # face colours written to OBJ, OBJ texture coordinates and materials, an
+    # OFF colour-map index: pcprep does not write them there, so a write of
+    # the faces is refused, naming them, unless the user drops them (the
+    # faces stay) or the faces
     tris = [[i, i + 1, i + 2] for i in range(58)]
     v = np.array([tuple(p) for p in CLOUD_60], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
     face = np.empty(len(tris), dtype=[("vertex_indices", "i4", (3,)), ("red", "u1")])
@@ -817,15 +814,18 @@ def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
     (tmp_path / "m.obj").write_text(
         verts + "vt 0 0\nvt 1 0\nvt 0 1\nusemtl stone\n"
         + "".join(f"f {a + 1}/1 {b + 1}/2 {c + 1}/3\n" for a, b, c in tris))
-    (tmp_path / "m.off").write_text(
-        f"OFF\n60 {len(tris)} 0\n" + verts.replace("v ", "")
-        + "".join(f"3 {a} {b} {c} 255 0 0\n" for a, b, c in tris))
-    carried = {"m.ply": "red, which pcprep writes to .ply only",
+    for name, colour in (("m.off", "255 0 0"), ("map.off", "7")):  # a colour; a map index
+        (tmp_path / name).write_text(
+            f"OFF\n60 {len(tris)} 0\n" + verts.replace("v ", "")
+            + "".join(f"3 {a} {b} {c} {colour}\n" for a, b, c in tris))
+    carried = {"m.ply": "red, which pcprep does not write to .obj files",
+               "m.off": "red, green, blue, which pcprep does not write to .obj files",
                "m.obj": "texture coordinates, materials (usemtl), which pcprep does not",
-               "m.off": "face colours, which pcprep does not"}
+               "map.off": "face colours, which pcprep does not"}
     for name, what in carried.items():
         src = tmp_path / name
-        dst = tmp_path / ("from_ply.obj" if name == "m.ply" else "out" + name[1:])
+        dst = tmp_path / (f"from_{name[-3:]}.obj" if name in ("m.ply", "m.off")
+                          else f"out_{name}")
         run = ["outliers", str(src), str(dst), "--std-ratio", "50", "--quiet", *tiled]
         assert main(run) == 1
         assert f"faces carry {what}" in capsys.readouterr().err
@@ -1218,47 +1218,64 @@ def test_a_mesh_is_written_as_points_alone_only_when_asked(tmp_path, capsys, mon
     assert len(formats.read_cloud(tmp_path / "api.xyz")) == 600
 
 
-def _ply_with_elements(path, n=600, edges=True):
+def _ply_with_elements(path, n=600, edges=True, grid=False):
     """``_ply_with_properties``' vertices (no faces) with a ``camera`` element,
-    which refers to no vertex, and, with ``edges``, an ``edge`` element."""
+    which refers to no vertex, with ``edges`` an ``edge`` element (scalar
+    references), with ``grid`` a ``range_grid`` (a list of references)."""
     v = _ply_with_properties(path, text=False, n=n, faces=False)
     cam = np.zeros(1, dtype=[("view_px", "f4"), ("view_py", "f4"), ("focal", "f4")])
     cam["focal"] = 35.0
     els = [PlyElement.describe(v, "vertex"), PlyElement.describe(cam, "camera")]
     if edges:
-        e = np.zeros(3, dtype=[("vertex1", "i4"), ("vertex2", "i4")])
-        e["vertex1"], e["vertex2"] = [0, 1, 2], [1, 2, 3]
-        els.append(PlyElement.describe(e, "edge"))
+        e = np.zeros(n - 1, dtype=[("vertex1", "i4"), ("vertex2", "i4"), ("weight", "f4")])
+        e["vertex1"], e["vertex2"] = np.arange(n - 1), np.arange(1, n)
+        e["weight"] = np.arange(n - 1) / 4
+        els.append(PlyElement.describe(e, "edge", comments=["a polyline"]))
+    if grid:
+        r = np.empty(n, dtype=[("vertex_indices", "O")])
+        r["vertex_indices"] = [np.array([i], "i4") for i in range(n)]
+        els.append(PlyElement.describe(r, "range_grid", val_types={"vertex_indices": "i4"}))
     PlyData(els).write(str(path))
 
 
 @pytest.mark.parametrize("tiled", [[], ["--tiles", "200", "--workers", "1"]])
 def test_other_ply_elements_are_not_lost_without_a_word(tmp_path, capsys, monkeypatch, tiled):
     # a camera refers to no vertex: kept after a removal; an edge refers to
-    # vertex rows: a removal would leave it wrong, so the write is refused
-    # unless --drop-elements; a format other than PLY holds neither (refused
-    # before any work, the tiled run too)
+    # vertex rows by two scalars: renumbered, those with a removed end left
+    # out, as faces are; a range grid's lists of rows would be left wrong, so
+    # the write is refused unless --drop-elements; a format other than PLY
+    # holds none of them (refused before any work, the tiled run too)
     from pcprep.meshlab_bridge import tiles
 
-    _ply_with_elements(tmp_path / "both.ply")
-    _ply_with_elements(tmp_path / "camera.ply", edges=False)
+    _ply_with_elements(tmp_path / "all.ply", grid=True)
+    _ply_with_elements(tmp_path / "edges.ply")
     remove = ["outliers", "--std-ratio", "1", "--quiet", *tiled]
-    assert main([*remove[:1], str(tmp_path / "both.ply"), str(tmp_path / "o.ply"),
+    assert main([*remove[:1], str(tmp_path / "all.ply"), str(tmp_path / "o.ply"),
                  *remove[1:]]) == 1
-    assert "element(s) edge refer to vertex rows" in capsys.readouterr().err
+    assert "element(s) range_grid refer to vertex rows" in capsys.readouterr().err
     assert not (tmp_path / "o.ply").exists()
-    for src, flag in (("both.ply", ["--drop-elements"]), ("camera.ply", [])):
+    for src, flag in (("all.ply", ["--drop-elements"]), ("edges.ply", [])):
         assert main([*remove[:1], str(tmp_path / src), str(tmp_path / "o.ply"),
                      *remove[1:], *flag]) == 0
         back = PlyData.read(str(tmp_path / "o.ply"))
         assert back["vertex"].count < 600
-        assert [el.name for el in back.elements] == ["vertex", *["camera"] * (not flag)]
+        assert [el.name for el in back.elements] == ["vertex", *["camera", "edge"] * (not flag)]
+    x = PlyData.read(str(tmp_path / "edges.ply"))["vertex"]["x"]
+    kept = np.flatnonzero(np.isin(x, back["vertex"]["x"]))
+    whole = np.isin(np.arange(599), kept) & np.isin(np.arange(1, 600), kept)
+    edge = back["edge"]
+    assert 0 < whole.sum() < 599 and edge.count == whole.sum()
+    assert np.array_equal(kept[edge["vertex1"]], np.flatnonzero(whole))  # renumbered
+    assert np.array_equal(kept[edge["vertex2"]], np.flatnonzero(whole) + 1)
+    assert np.array_equal(edge["weight"], np.flatnonzero(whole) / 4)
+    assert edge.comments == ["a polyline"] and edge.data.dtype["vertex1"] == np.dtype("i4")
     with monkeypatch.context() as m:
         m.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
-        assert main(["saliency", str(tmp_path / "both.ply"), str(tmp_path / "o.las"),
+        assert main(["saliency", str(tmp_path / "all.ply"), str(tmp_path / "o.las"),
                      "--quiet", *tiled]) == 1
-        assert "element(s) camera, edge have no place in a .las" in capsys.readouterr().err
-    assert main(["saliency", str(tmp_path / "both.ply"), str(tmp_path / "o.las"), "--quiet",
+        assert ("element(s) camera, edge, range_grid have no place in a .las"
+                in capsys.readouterr().err)
+    assert main(["saliency", str(tmp_path / "all.ply"), str(tmp_path / "o.las"), "--quiet",
                  "--drop-elements", *tiled]) == 0
 
 
@@ -1506,3 +1523,86 @@ def test_a_tiled_run_keeps_face_attributes_as_one_piece_does(tmp_path, quad):
     assert len(ref.faces) and np.array_equal(out.faces, ref.faces)
     for k in ("red", "quality"):
         assert np.array_equal(out.face_attributes[k], ref.face_attributes[k])
+
+
+@pytest.mark.parametrize("name", ["cloud.off", "cloud.obj"])
+def test_a_tiled_run_on_a_file_read_whole_without_normals(tmp_path, name):
+    # OFF and OBJ are read whole; a filter that takes input normals found
+    # none there and the tiled run stopped with a traceback
+    from pcprep.baselines.datasets import make_shape
+
+    src = tmp_path / name
+    formats.write_cloud(Cloud(make_shape("fandisk", n=1500, seed=2).points), src)
+    outs = {}
+    for key, tiled in (("one", []), ("tiled", ["--tiles", "400", "--workers", "1"])):
+        assert main(["saliency", str(src), str(tmp_path / f"{key}.ply"), "--quiet",
+                     *tiled]) == 0
+        outs[key] = formats.read_cloud(tmp_path / f"{key}.ply")
+    assert np.allclose(outs["tiled"].quality, outs["one"].quality, rtol=0, atol=1e-9)
+    assert np.ptp(outs["one"].quality) > 0
+
+
+def test_a_meshset_removal_renumbers_a_ply_s_edges(tmp_path):
+    # pcprep's removal in a MeshSet knows the rows it kept: the save renumbers
+    # the edges as the command line does; after a MeshLab filter that removed
+    # rows pcprep does not know which, so the save refuses to write them wrong
+    import pcprep
+
+    _ply_with_elements(tmp_path / "edges.ply")
+    assert main(["outliers", str(tmp_path / "edges.ply"), str(tmp_path / "cli.ply"),
+                 "--std-ratio", "1", "--quiet"]) == 0
+    ms = pcprep.MeshSet()
+    ms.load_new_mesh(str(tmp_path / "edges.ply"))
+    ms.apply_filter("meshing_remove_point_outliers", std_ratio=1.0)
+    ms.save_current_mesh(str(tmp_path / "ms.ply"))
+    cli, got = (PlyData.read(str(tmp_path / n)) for n in ("cli.ply", "ms.ply"))
+    assert 0 < got["edge"].count < 599
+    assert np.array_equal(got["edge"].data, cli["edge"].data)
+    ms = pcprep.MeshSet()
+    ms.load_new_mesh(str(tmp_path / "edges.ply"))
+    ms.apply_filter("meshing_remove_point_outliers", std_ratio=1.0)
+    ms.apply_filter("generate_simplified_point_cloud_sdbs", ratio=0.5)
+    ms.save_current_mesh(str(tmp_path / "twice.ply"))  # both pcprep's: known rows
+    assert PlyData.read(str(tmp_path / "twice.ply"))["edge"].count < got["edge"].count
+    ms = pcprep.MeshSet()
+    ms.load_new_mesh(str(tmp_path / "edges.ply"))
+    mid = float(np.median(PlyData.read(str(tmp_path / "edges.ply"))["vertex"]["x"]))
+    ms.compute_selection_by_condition_per_vertex(condselect=f"x < {mid!r}")
+    ms.meshing_remove_selected_vertices()
+    assert ms.current_mesh().vertex_number() < 600
+    ms.apply_filter("meshing_remove_point_outliers", std_ratio=1.0)
+    with pytest.raises(PointCloudError, match="element.s. edge refer to vertex rows"):
+        ms.save_current_mesh(str(tmp_path / "lost.ply"))
+    assert not (tmp_path / "lost.ply").exists()
+
+
+def test_off_face_colours_are_kept(tmp_path):
+    # integers 0-255 or floats 0-1 after a face's indices, alpha or not: a
+    # polygon's colour on each triangle of its fan, written back to OFF and
+    # PLY; floats keep their point, so 1.0 does not come back as 1 of 255
+    verts = "0 0 0\n1 0 0\n0 1 0\n1 1 0\n2 2 0\n"
+    (tmp_path / "i.off").write_text(f"OFF\n5 2 0\n{verts}3 0 1 2 255 0 0\n"
+                                    "4 1 3 4 2 0 128 255 40\n")
+    (tmp_path / "f.off").write_text(f"OFF\n5 1 0\n{verts}3 0 1 2 1.0 0 0\n")
+    ints, floats = (formats.read_cloud(tmp_path / n) for n in ("i.off", "f.off"))
+    assert np.array_equal(ints.faces, [[0, 1, 2], [1, 3, 4], [1, 4, 2]])
+    want = {"red": [255, 0, 0], "green": [0, 128, 128], "blue": [0, 255, 255],
+            "alpha": [255, 40, 40]}
+    assert {k: v.tolist() for k, v in ints.face_attributes.items()} == want
+    assert ints.face_attributes["red"].dtype == np.uint8
+    assert {k: v.tolist() for k, v in floats.face_attributes.items()} == {
+        "red": [1.0], "green": [0.0], "blue": [0.0]}
+    for cloud, name in ((ints, "i"), (floats, "f")):
+        for ext in (".off", ".ply"):
+            formats.write_cloud(cloud, tmp_path / f"{name}_out{ext}")
+            back = formats.read_cloud(tmp_path / f"{name}_out{ext}")
+            assert np.array_equal(back.faces, cloud.faces)
+            for k, v in cloud.face_attributes.items():
+                assert np.array_equal(back.face_attributes[k], v)
+                assert back.face_attributes[k].dtype == v.dtype
+    quality = ints.with_(face_attributes={**ints.face_attributes, "quality": np.ones(3)})
+    with pytest.raises(PointCloudError, match="carry quality, which pcprep does not write"):
+        formats.write_cloud(quality, tmp_path / "q.off")
+    partial = ints.with_(faces=ints.faces, face_attributes={"red": ints.face_attributes["red"]})
+    with pytest.raises(PointCloudError, match="carry red, which pcprep does not write"):
+        formats.write_cloud(partial, tmp_path / "r.off")

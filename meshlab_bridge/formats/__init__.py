@@ -56,6 +56,10 @@ CAN_STORE = {
 }
 
 
+#: the face attributes each format that stores faces writes (PLY: any)
+FACE_ATTRIBUTES = {".off": ("red", "green", "blue", "alpha")}
+
+
 def _module(ext: str):
     from importlib import import_module
 
@@ -210,15 +214,17 @@ def check_kept(cloud: Cloud, path: str) -> None:
     if others:
         from .ply import kept_elements
 
-        kept = kept_elements(others, len(cloud), info) if ext == ".ply" else []
-        check_elements([el.name for el in others if el not in kept], path)
+        kept = {el.name for el in kept_elements(others, len(cloud), info)} if ext == ".ply" \
+            else set()
+        check_elements([el.name for el in others if el.name not in kept], path)
 
 
 def check_elements(lost, path) -> None:
     """Refuse a write that would leave out the PLY elements named ``lost``
     (besides the vertices and faces: edges, cameras, range grids, …): a
     format other than PLY has no place for them, and after a removal an
-    element that refers to vertex rows (``ply.indexes_vertices``) would
+    element that refers to vertex rows by a list (a range grid), or where
+    the removal's kept rows are not known (``ply.kept_elements``), would
     refer to the wrong ones.  Dropping them is the user's call
     (``--drop-elements``, ``drop_elements(cloud)``)."""
     if lost:
@@ -246,8 +252,9 @@ def check_faces(count: int, path, properties=(), kept=()) -> None:
     OBJ texture coordinates and materials, OFF face colours, a PLY list
     whose length is not a number of values per corner); and faces with the
     attributes ``kept`` (``Cloud.face_attributes``: PLY face colours,
-    quality, texture coordinates, …) to a format other than PLY, which
-    pcprep writes them to: each would lose part of the mesh without a word.
+    quality, texture coordinates, …) to a format that does not hold them
+    (OBJ; OFF holds a colour alone): each would lose part of the mesh
+    without a word.
     Dropping them is the user's call, made explicitly (``--drop-faces``,
     ``--drop-face-properties``, MeshLab's Remove All Faces, or in Python
     ``cloud.with_(faces=None)`` and ``drop_face_properties(cloud)``)."""
@@ -260,15 +267,28 @@ def check_faces(count: int, path, properties=(), kept=()) -> None:
             f"would lose the input's {count} faces; write .ply, .obj or .off to keep them, "
             "or drop them explicitly (CLI: --drop-faces; MeshLab: Remove All Faces, "
             "meshing_remove_all_faces; Python: cloud.with_(faces=None))")
-    lost = list(properties) + (list(kept) if ext != ".ply" else [])
+    lost = list(properties) + _unwritable(kept, ext)
     if lost:
         why = ("which pcprep does not keep" if properties
-               else f"which pcprep writes to .ply only, not to {ext}")
+               else f"which pcprep does not write to {ext} files")
         raise PointCloudError(
             f"cannot write {os.fspath(path)!r}: the input's faces carry "
             f"{', '.join(lost)}, {why}; drop them explicitly to "
             "write the faces without them (CLI: --drop-face-properties; Python: "
             "formats.drop_face_properties(cloud)), or the vertices alone (--drop-faces)")
+
+
+def _unwritable(names, ext: str) -> list:
+    """The face attributes ``names`` a file of type ``ext`` cannot hold: none
+    for PLY; for OFF, all but a whole colour (red, green, blue, and alpha
+    or not), and all of a partial one."""
+    if ext == ".ply":
+        return []
+    can = FACE_ATTRIBUTES.get(ext, ())
+    lost = [k for k in names if k not in can]
+    if can and not lost and names and not {"red", "green", "blue"} <= set(names):
+        return list(names)
+    return lost
 
 
 def drop_face_properties(cloud: Cloud) -> Cloud:

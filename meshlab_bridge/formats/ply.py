@@ -428,15 +428,69 @@ def indexes_vertices(el) -> bool:
     return any(p.name.startswith("vertex") for p in el.properties)
 
 
-def kept_elements(others, count: int, info: dict) -> list:
+def kept_elements(others, count: int, info: dict, kept=None, increasing: bool = False) -> list:
     """Of the other elements ``others``, those a PLY of ``count`` vertices
-    written from the file ``info`` describes keeps as they were read: all of
-    them where every vertex is kept, else those that refer to no vertex (a
-    camera, a material); the others would refer to the wrong rows, and
-    ``formats.check_elements`` refuses to leave them out without a word."""
-    if count == info.get("n_vertices", -1):
+    written from the file ``info`` describes keeps: all of them as they were
+    read where every vertex is kept; after a removal that kept the input's
+    rows ``kept`` (row j of the result is input row ``kept[j]``; by default
+    ``info["kept_rows"]``, which ``Cloud.subset`` records), those that refer
+    to no vertex (a camera, a material) as they were read and those that
+    refer to vertices by scalar properties (an edge's ``vertex1`` and
+    ``vertex2``) renumbered, their rows that refer to a removed vertex left
+    out, as a face is (``renumbered``).  An element that refers to vertices
+    by a list (a range grid's ``vertex_indices``), and any that refers to
+    vertices where the kept rows are not known, would refer to the wrong
+    rows; ``formats.check_elements`` refuses to leave it out without a word.
+    ``increasing``: ``kept`` is known to increase (a memory map, not read
+    whole to check)."""
+    kept = info.get("kept_rows") if kept is None else kept
+    if kept is None and count == info.get("n_vertices", -1):
         return list(others)
-    return [el for el in others if not indexes_vertices(el)]
+    out = []
+    for el in others:
+        if not indexes_vertices(el):
+            out.append(el)
+        elif kept is not None and len(kept) == count and all(
+                not _is_list(p) for p in el.properties if p.name.startswith("vertex")):
+            out.append(renumbered(el, kept, increasing))
+    return out
+
+
+def renumbered(el, kept, increasing: bool = False):
+    """Element ``el`` after a removal that kept the input's rows ``kept``:
+    its rows whose vertex references (scalar properties named ``vertex…``)
+    are all kept, those references renumbered to the kept rows' order, its
+    other properties, types and comments as they were."""
+    from plyfile import PlyElement
+
+    data = np.asarray(el.data)
+    refs = [p.name for p in el.properties if p.name.startswith("vertex")]
+    keep = np.ones(len(data), dtype=bool)
+    new = {}
+    for name in refs:
+        new[name], found = _positions(np.asarray(data[name], np.int64), kept, increasing)
+        keep &= found
+    data = data[keep].copy()
+    for name in refs:
+        data[name] = new[name][keep]
+    lists = [p for p in el.properties if _is_list(p)]
+    return PlyElement.describe(data, el.name, len_types={p.name: p.len_dtype for p in lists},
+                               val_types={p.name: p.val_dtype for p in lists},
+                               comments=list(el.comments))
+
+
+def _positions(values: np.ndarray, kept, increasing: bool):
+    """``(positions, found)``: where each of ``values`` (input rows) is among
+    ``kept``, found by binary search (the rows in ``kept`` sorted first
+    unless ``increasing``)."""
+    if not len(kept):
+        return np.zeros_like(values), np.zeros(len(values), dtype=bool)
+    kept = kept if increasing else np.asarray(kept)
+    order = None if increasing else np.argsort(kept, kind="stable")
+    sorted_rows = kept if order is None else kept[order]
+    pos = np.minimum(np.searchsorted(sorted_rows, values), len(kept) - 1)
+    found = np.asarray(sorted_rows[pos]) == values
+    return (pos if order is None else order[pos]), found
 
 
 def _other_elements(ply) -> list:

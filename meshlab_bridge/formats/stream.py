@@ -175,7 +175,7 @@ def normals_into(path, n: int, out: str):
     where the file has none (nothing written)."""
     path = os.fspath(path)
     blocks = _block_reader(path)
-    parts = iter([(0, read_cloud(path))]) if blocks is None else blocks(CHUNK)
+    parts = ((0, read_cloud(path)) for _ in (0,)) if blocks is None else blocks(CHUNK)
     arr = None
     for start, cloud in parts:
         if cloud.normals is None:  # the first block says: the file has none
@@ -509,9 +509,11 @@ def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
     elements = [ply.face_element(faces, face_layout)] if faces else []
     from . import check_elements
 
-    check_elements([el.name for el in others
-                    if el not in ply.kept_elements(others, count, info)], dst)
-    others = ply.kept_elements(others, count, info)
+    kept_rows = None if keep is None else keep.idx
+    written = ply.kept_elements(others, count, info, kept_rows, increasing=True)
+    check_elements([el.name for el in others if el.name not in {w.name for w in written}],
+                   dst)
+    others = written
     written = 0
     with _temporary(dst) as tmp, open(tmp, "wb") as f:
         rows = None

@@ -11,7 +11,8 @@ XYZ holds ``x y z`` or ``x y z nx ny nz`` per line (``#`` comments).  OBJ keeps
 ``v x y z [r g b]``, ``vn`` (as vertex normals when there is one per vertex)
 and ``f`` (polygons fan-triangulated; ``i/j/k`` indices and negative indices
 understood).  OFF, COFF, NOFF and CNOFF keep positions, normals, colours and
-faces.
+faces, and a colour per face (``r g b [a]`` after its indices, integers 0–255
+or floats 0–1) as the face attributes ``red green blue [alpha]``.
 """
 
 from __future__ import annotations
@@ -185,15 +186,44 @@ def _read_off(path: str) -> Cloud:
         c = np.array([(r[width - 4:width] + [255.0])[:4] if len(r) >= width - 1 else
                       [255.0] * 4 for r in rows])
         colors = c / 255.0 if c.max() > 1.0 else c
-    faces, coloured = [], False
+    faces, extra, n_tri, floats = [], [], [], False
     for no, tok in body[nv:]:
         vals = _numbers(tok, path, no, "face")
         count = int(vals[0])
         faces.extend(_triangles([int(v) for v in vals[1:1 + count]]))
-        coloured = coloured or len(vals) > 1 + count
+        n_tri.append(max(count - 2, 0))
+        extra.append(vals[1 + count:])
+        floats = floats or any(not t.lstrip("+-").isdigit() for t in tok[1 + count:])
     tri = _check_faces(np.array(faces, dtype=np.int64).reshape(-1, 3), nv, path)
+    values, lost = _off_face_colours(extra, n_tri, floats)
+    if tri is None:
+        values, lost = {}, ()
     return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path),
-                 meta={"format": ".off", "face_properties": ("face colours",) * coloured})
+                 meta={"format": ".off", "face_properties": lost}, face_attributes=values)
+
+
+#: the face attributes an OFF file holds, after each face's indices
+OFF_FACE = ("red", "green", "blue", "alpha")
+
+
+def _off_face_colours(extra: list, n_tri: list, floats: bool):
+    """``(face attributes, unkept)`` of the values after each OFF face's
+    indices: a colour of 3 or 4 values on every face, as ``red green blue
+    [alpha]`` (uint8 where every value is an integer, else float64 in
+    [0, 1]; a face without alpha among faces with one is opaque) on each
+    triangle of the face's fan; any other layout (a colour map index,
+    colours on some faces only) is named as not kept."""
+    sizes = {len(e) for e in extra}
+    if sizes <= {0}:
+        return {}, ()
+    if not sizes <= {3, 4}:
+        return {}, ("face colours",)
+    opaque = 1.0 if floats else 255.0  # a face without alpha, among faces with one
+    rows = [e + [opaque] * (max(sizes) - len(e)) for e in extra]
+    table = np.repeat(np.array(rows, dtype=np.float64), n_tri, axis=0)
+    if not floats and table.min() >= 0 and table.max() <= 255:
+        table = table.astype(np.uint8)
+    return {name: table[:, j].copy() for j, name in enumerate(OFF_FACE[:table.shape[1]])}, ()
 
 
 def _write_xyz(cloud: Cloud, path) -> None:
@@ -230,4 +260,12 @@ def _write_off(cloud: Cloud, path: str) -> None:
         f.write(f"{kind}\n{len(cloud)} {nf} 0\n")
         np.savetxt(f, np.hstack(cols), fmt=_FMT)
         if nf:
-            np.savetxt(f, np.c_[np.full(nf, 3), cloud.faces], fmt="%d")
+            table = np.c_[np.full(nf, 3), cloud.faces].astype(np.float64)
+            fmt = ["%d"] * 4
+            for name in OFF_FACE:  # ``check_faces`` allows no other face attribute
+                if name in cloud.face_attributes:
+                    v = np.asarray(cloud.face_attributes[name])
+                    table = np.c_[table, v.astype(np.float64)]
+                    # a float always with its point, or "1 0 0" would read as 0-255
+                    fmt.append("%d" if v.dtype.kind in "ui" else "%#.17g")
+            np.savetxt(f, table, fmt=fmt)
