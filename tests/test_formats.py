@@ -800,10 +800,10 @@ def test_binary_mesh_is_written_as_plyfile_writes_it(tmp_path, order, edges):
 @pytest.mark.parametrize("tiled", [[], ["--tiles", "20", "--workers", "1"]])
 def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
     # PLY face colours (a binary mesh, read in blocks when tiled) and OFF
-    # face colours written to OBJ, OBJ texture coordinates and materials, an
-    # OFF colour-map index: pcprep does not write them there, so a write of
-    # the faces is refused, naming them, unless the user drops them (the
-    # faces stay) or the faces
+    # face colours written to OBJ, OBJ texture coordinates on some faces
+    # only, an OFF colour-map index: pcprep does not write them there, so a
+    # write of the faces is refused, naming them, unless the user drops them
+    # (the faces stay) or the faces
     tris = [[i, i + 1, i + 2] for i in range(58)]
     v = np.array([tuple(p) for p in CLOUD_60], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
     face = np.empty(len(tris), dtype=[("vertex_indices", "i4", (3,)), ("red", "u1")])
@@ -812,15 +812,15 @@ def test_what_faces_carry_is_not_lost_without_a_word(tmp_path, capsys, tiled):
         str(tmp_path / "m.ply"))
     verts = "".join(f"v {x} {y} {z}\n" for x, y, z in CLOUD_60)
     (tmp_path / "m.obj").write_text(
-        verts + "vt 0 0\nvt 1 0\nvt 0 1\nusemtl stone\n"
-        + "".join(f"f {a + 1}/1 {b + 1}/2 {c + 1}/3\n" for a, b, c in tris))
+        verts + "vt 0 0\nvt 1 0\nvt 0 1\nusemtl stone\n" + "f 1 2 3\n"
+        + "".join(f"f {a + 1}/1 {b + 1}/2 {c + 1}/3\n" for a, b, c in tris[1:]))
     for name, colour in (("m.off", "255 0 0"), ("map.off", "7")):  # a colour; a map index
         (tmp_path / name).write_text(
             f"OFF\n60 {len(tris)} 0\n" + verts.replace("v ", "")
             + "".join(f"3 {a} {b} {c} {colour}\n" for a, b, c in tris))
     carried = {"m.ply": "red, which pcprep does not write to .obj files",
                "m.off": "red, green, blue, which pcprep does not write to .obj files",
-               "m.obj": "texture coordinates, materials (usemtl), which pcprep does not",
+               "m.obj": "texture coordinates (on some faces only), which pcprep does not",
                "map.off": "face colours, which pcprep does not"}
     for name, what in carried.items():
         src = tmp_path / name
@@ -1606,3 +1606,66 @@ def test_off_face_colours_are_kept(tmp_path):
     partial = ints.with_(faces=ints.faces, face_attributes={"red": ints.face_attributes["red"]})
     with pytest.raises(PointCloudError, match="carry red, which pcprep does not write"):
         formats.write_cloud(partial, tmp_path / "r.off")
+
+
+_OBJ = """mtllib a.mtl
+o Box
+v 0 0 0
+v 1 0 0
+v 0 1 0
+v 1 1 0
+v 2 2 0
+vt 0 0
+vt 1 0
+vt 0 1
+vt 1 1
+vt 0.5 0.5
+g top
+usemtl stone
+s 1
+f 1/1 2/2 3/3
+usemtl wood
+f 2/2 4/4 5/5 3/3
+s off
+g side
+f -3/-3 -2/-2 -1/-1
+"""
+
+
+def test_obj_texture_coordinates_materials_and_groups_are_kept(tmp_path):
+    # each triangle of a face's fan gets the u v of its corners and the
+    # object, group, material and smoothing group in force; written back as
+    # the lines that give them, cut with the faces by a removal, and refused
+    # where PLY has no place for the names
+    (tmp_path / "a.obj").write_text(_OBJ)
+    cloud = formats.read_cloud(tmp_path / "a.obj")
+    assert np.array_equal(cloud.faces, [[0, 1, 2], [1, 3, 4], [1, 4, 2], [2, 3, 4]])
+    assert cloud.face_attributes["texcoord"].tolist() == [
+        [0, 0, 1, 0, 0, 1], [1, 0, 1, 1, .5, .5], [1, 0, .5, .5, 0, 1], [0, 1, 1, 1, .5, .5]]
+    want = {"object": [0, 0, 0, 0], "group": [0, 0, 0, 1], "material": [0, 1, 1, 1],
+            "smoothing": [0, 0, 0, 1]}
+    assert {k: cloud.face_attributes[k].tolist() for k in want} == want
+    assert cloud.meta["obj"] == {"mtllib": ["a.mtl"], "object": ["Box"],
+                                 "group": ["top", "side"], "material": ["stone", "wood"],
+                                 "smoothing": ["1", "off"]}
+    formats.write_cloud(cloud, tmp_path / "b.obj")
+    text = (tmp_path / "b.obj").read_text()
+    assert text.count("usemtl") == 2 and text.count("\ng ") == 2 and "mtllib a.mtl" in text
+    cut = cloud.subset(np.array([1, 2, 3, 4]))  # vertex 0 goes, and the first face
+    for c, name in ((cloud, "b.obj"), (cut, "cut.obj")):
+        formats.write_cloud(c, tmp_path / name)
+        back = formats.read_cloud(tmp_path / name)
+        assert np.array_equal(back.faces, c.faces)
+        assert np.array_equal(back.face_attributes["texcoord"], c.face_attributes["texcoord"])
+        for k in want:  # the same name on each face (the names unused are not written)
+            assert ([back.meta["obj"][k][i] for i in back.face_attributes[k]]
+                    == [c.meta["obj"][k][i] for i in c.face_attributes[k]]), (name, k)
+    assert cut.face_attributes["material"].tolist() == [1, 1, 1]
+    with pytest.raises(PointCloudError, match="object, group, material, smoothing, which "
+                                              "pcprep does not write to .ply"):
+        formats.write_cloud(cloud, tmp_path / "b.ply")
+    formats.write_cloud(formats.drop_face_properties(cloud), tmp_path / "b.ply")
+    assert not formats.read_cloud(tmp_path / "b.ply").face_attributes
+    (tmp_path / "w.obj").write_text(_OBJ.replace("vt 0.5 0.5", "vt 0.5 0.5 0.25"))
+    assert formats.read_cloud(tmp_path / "w.obj").meta["face_properties"] == (
+        "texture coordinates (u v w)",)

@@ -57,7 +57,8 @@ CAN_STORE = {
 
 
 #: the face attributes each format that stores faces writes (PLY: any)
-FACE_ATTRIBUTES = {".off": ("red", "green", "blue", "alpha")}
+FACE_ATTRIBUTES = {".off": ("red", "green", "blue", "alpha"),
+                   ".obj": ("texcoord", "object", "group", "material", "smoothing")}
 
 
 def _module(ext: str):
@@ -207,8 +208,10 @@ def check_kept(cloud: Cloud, path: str) -> None:
         raise PointCloudError(
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
+    named = cloud.meta.get("obj", {})
     check_faces(0 if cloud.faces is None else len(cloud.faces), path,
-                cloud.meta.get("face_properties", ()), tuple(cloud.face_attributes))
+                cloud.meta.get("face_properties", ()), tuple(cloud.face_attributes),
+                tuple(k for k in cloud.face_attributes if k in named))
     info = cloud.meta.get("ply", {})
     others = list(info.get("other_elements", {}).values())
     if others:
@@ -245,7 +248,7 @@ def drop_elements(cloud: Cloud) -> Cloud:
     return cloud.with_(meta={**cloud.meta, "ply": {**info, "other_elements": {}}})
 
 
-def check_faces(count: int, path, properties=(), kept=()) -> None:
+def check_faces(count: int, path, properties=(), kept=(), named=()) -> None:
     """Refuse to write ``count`` faces to a format that stores points alone
     (LAS, LAZ, PCD, XYZ, E57); faces that carry ``properties`` (what the
     reader found on the faces besides their vertices and could not keep:
@@ -253,8 +256,9 @@ def check_faces(count: int, path, properties=(), kept=()) -> None:
     whose length is not a number of values per corner); and faces with the
     attributes ``kept`` (``Cloud.face_attributes``: PLY face colours,
     quality, texture coordinates, …) to a format that does not hold them
-    (OBJ; OFF holds a colour alone): each would lose part of the mesh
-    without a word.
+    (``_unwritable``; ``named``: those that index names an OBJ file gave,
+    its objects, groups, materials and smoothing groups, which only OBJ
+    holds): each would lose part of the mesh without a word.
     Dropping them is the user's call, made explicitly (``--drop-faces``,
     ``--drop-face-properties``, MeshLab's Remove All Faces, or in Python
     ``cloud.with_(faces=None)`` and ``drop_face_properties(cloud)``)."""
@@ -267,7 +271,7 @@ def check_faces(count: int, path, properties=(), kept=()) -> None:
             f"would lose the input's {count} faces; write .ply, .obj or .off to keep them, "
             "or drop them explicitly (CLI: --drop-faces; MeshLab: Remove All Faces, "
             "meshing_remove_all_faces; Python: cloud.with_(faces=None))")
-    lost = list(properties) + _unwritable(kept, ext)
+    lost = list(properties) + _unwritable(kept, named, ext)
     if lost:
         why = ("which pcprep does not keep" if properties
                else f"which pcprep does not write to {ext} files")
@@ -278,15 +282,18 @@ def check_faces(count: int, path, properties=(), kept=()) -> None:
             "formats.drop_face_properties(cloud)), or the vertices alone (--drop-faces)")
 
 
-def _unwritable(names, ext: str) -> list:
-    """The face attributes ``names`` a file of type ``ext`` cannot hold: none
-    for PLY; for OFF, all but a whole colour (red, green, blue, and alpha
-    or not), and all of a partial one."""
+def _unwritable(names, named, ext: str) -> list:
+    """The face attributes ``names`` a file of type ``ext`` cannot hold: for
+    PLY those ``named`` (indices of an OBJ's names, which PLY has no place
+    for); for OFF all but a whole colour (red, green, blue, and alpha or
+    not), and all of a partial one; for OBJ all but texture coordinates and
+    the ``named`` objects, groups, materials and smoothing groups."""
     if ext == ".ply":
-        return []
+        return list(named)
     can = FACE_ATTRIBUTES.get(ext, ())
-    lost = [k for k in names if k not in can]
-    if can and not lost and names and not {"red", "green", "blue"} <= set(names):
+    lost = [k for k in names if k not in can or (ext == ".obj" and k != "texcoord"
+                                                 and k not in named)]
+    if ext == ".off" and not lost and names and not {"red", "green", "blue"} <= set(names):
         return list(names)
     return lost
 

@@ -8,9 +8,10 @@ line ``v abc def ghi`` becomes a point at the origin) and its writers keep six
 digits, so pcprep does these itself: a malformed row is an error naming its line.
 
 XYZ holds ``x y z`` or ``x y z nx ny nz`` per line (``#`` comments).  OBJ keeps
-``v x y z [r g b]``, ``vn`` (as vertex normals when there is one per vertex)
-and ``f`` (polygons fan-triangulated; ``i/j/k`` indices and negative indices
-understood).  OFF, COFF, NOFF and CNOFF keep positions, normals, colours and
+``v x y z [r g b]``, ``vn`` (as vertex normals when there is one per vertex),
+``f`` (polygons fan-triangulated; ``i/j/k`` indices and negative indices
+understood) and what the faces carry (``vt`` texture coordinates, ``o``, ``g``,
+``usemtl``, ``s``, ``mtllib``; ``_read_obj``).  OFF, COFF, NOFF and CNOFF keep positions, normals, colours and
 faces, and a colour per face (``r g b [a]`` after its indices, integers 0–255
 or floats 0–1) as the face attributes ``red green blue [alpha]``.
 """
@@ -100,8 +101,21 @@ def _triangles(poly: list[int]) -> list[tuple[int, int, int]]:
 
 
 def _read_obj(path: str) -> Cloud:
-    verts, cols, vns, faces = [], [], [], []
-    textured = materials = False
+    """An OBJ's vertices (``v``, with colours), normals (``vn``, one per vertex)
+    and faces, each polygon fanned, with what the faces carry as face
+    attributes on each triangle of the fan: ``texcoord`` (the u v of its three
+    corners, from ``vt`` by the faces' ``v/vt`` indices, the layout MeshLab's
+    PLY uses), ``object`` (``o``), ``group`` (``g``), ``material``
+    (``usemtl``) and ``smoothing`` (``s``), the last four as indices into the
+    names in ``meta["obj"]`` (with the ``mtllib`` lines; -1 before the first
+    such line), so that a write gives the lines back.  What is not kept is named in ``meta["face_properties"]``:
+    texture coordinates on some faces only or with a w, normals per corner."""
+    verts, cols, vns, vts = [], [], [], []
+    faces, corner_vt, n_tri, state = [], [], [], []
+    keys = {"o": "object", "g": "group", "usemtl": "material", "s": "smoothing"}
+    names = {k: [] for k in keys.values()}
+    now = {k: -1 for k in keys.values()}
+    mtllib, w_used, seen = [], False, set()
     with open(path, encoding="utf-8", errors="replace") as f:
         for no, line in enumerate(f, 1):
             tok = line.split("#", 1)[0].split()
@@ -117,19 +131,34 @@ def _read_obj(path: str) -> Cloud:
                     cols.append(vals[-3:])
             elif tok[0] == "vn":
                 vns.append(_numbers(tok[1:4], path, no, "normal"))
+            elif tok[0] == "vt":
+                vals = _numbers(tok[1:], path, no, "texture coordinate")
+                w_used = w_used or (len(vals) > 2 and vals[2] != 0.0)
+                vts.append((vals + [0.0, 0.0])[:2])
             elif tok[0] == "f":
-                textured = textured or any(len(t.split("/")) > 1 and t.split("/")[1]
-                                           for t in tok[1:])
                 try:
-                    idx = [int(t.split("/")[0]) for t in tok[1:]]
+                    parts = [t.split("/") for t in tok[1:]]
+                    idx = [int(p[0]) for p in parts]
+                    tex = [int(p[1]) if len(p) > 1 and p[1] else None for p in parts]
                 except ValueError:
                     raise PointCloudError(f"cannot read {path!r}: line {no}: face "
                                           f"{' '.join(tok[1:])!r} is not numeric") from None
-                n = len(verts)
+                n, m = len(verts), len(vts)
                 idx = [i - 1 if i > 0 else n + i for i in idx]
                 faces.extend(_triangles(idx))
-            elif tok[0] == "usemtl":
-                materials = True
+                n_tri.append(max(len(idx) - 2, 0))
+                corner_vt.append(None if None in tex else
+                                 [t - 1 if t > 0 else m + t for t in tex])
+                state.append(tuple(now.values()))
+            elif tok[0] in keys:
+                key = keys[tok[0]]
+                text = " ".join(tok[1:])
+                if text not in names[key]:
+                    names[key].append(text)
+                now[key] = names[key].index(text)
+                seen.add(key)
+            elif tok[0] == "mtllib":
+                mtllib.append(" ".join(tok[1:]))
     if not verts:
         raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
     pts = np.array(verts, dtype=np.float64)
@@ -141,11 +170,40 @@ def _read_obj(path: str) -> Cloud:
         colors = np.c_[np.array(cols, dtype=np.float64), np.ones(len(cols))]
     normals = np.array(vns, dtype=np.float64) if len(vns) == len(verts) else None
     tri = _check_faces(np.array(faces, dtype=np.int64).reshape(-1, 3), len(pts), path)
-    # what the faces carry that pcprep does not keep (formats.check_faces)
-    carried = (("texture coordinates",) * textured + ("materials (usemtl)",) * materials
-               + ("normals per corner",) * (len(vns) > 0 and normals is None))
-    return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path),
-                 meta={"format": ".obj", "face_properties": carried})
+    values, lost = {}, []
+    if tri is not None:
+        values, lost = _obj_face_values(path, corner_vt, n_tri, vts, w_used, state, seen)
+        lost += ["normals per corner"] * (len(vns) > 0 and normals is None)
+    meta = {"format": ".obj", "face_properties": tuple(lost),
+            "obj": {"mtllib": mtllib, **{k: v for k, v in names.items() if k in seen}}}
+    return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path), meta=meta,
+                 face_attributes=values)
+
+
+def _obj_face_values(path, corner_vt, n_tri, vts, w_used, state, seen):
+    """``(face attributes, unkept names)`` of an OBJ's faces (``_read_obj``)."""
+    from .ply import _fan_corners
+
+    values, lost = {}, []
+    n_tri = np.asarray(n_tri, dtype=np.int64)
+    textured = [c is not None for c in corner_vt]
+    if any(textured) and not all(textured):
+        lost.append("texture coordinates (on some faces only)")
+    elif any(textured) and w_used:
+        lost.append("texture coordinates (u v w)")
+    elif any(textured):
+        flat = np.fromiter((t for c in corner_vt for t in c), dtype=np.int64)
+        if len(flat) and (flat.min() < 0 or flat.max() >= len(vts)):
+            raise PointCloudError(f"cannot read {path!r}: a face refers to a texture "
+                                  f"coordinate that does not exist ({len(vts)} of them)")
+        sizes = np.fromiter(map(len, corner_vt), dtype=np.int64, count=len(corner_vt))
+        uv = np.asarray(vts, dtype=np.float64)[flat[_fan_corners(sizes)]]  # (t, 3, 2)
+        values["texcoord"] = uv.reshape(len(uv), 6)
+    table = np.repeat(np.asarray(state, dtype=np.int32).reshape(-1, 4), n_tri, axis=0)
+    for j, key in enumerate(("object", "group", "material", "smoothing")):
+        if key in seen:
+            values[key] = table[:, j].copy()
+    return values, lost
 
 
 def _check_faces(faces: np.ndarray, n: int, path: str) -> np.ndarray | None:
@@ -233,18 +291,59 @@ def _write_xyz(cloud: Cloud, path) -> None:
     np.savetxt(path, cols, fmt=_FMT)
 
 
+#: the face attributes an OBJ file holds: ``texcoord`` (u v per corner) as
+#: ``vt`` lines, the others as the lines that switch them, by their names in
+#: ``meta["obj"]``
+OBJ_FACE = ("texcoord", "object", "group", "material", "smoothing")
+_OBJ_SWITCH = {"object": "o ", "group": "g ", "material": "usemtl ", "smoothing": "s "}
+
+
 def _write_obj(cloud: Cloud, path: str) -> None:
+    """The lines ``_read_obj`` reads back: the ``mtllib`` lines, normals,
+    vertices, a face's three texture coordinates as ``vt`` lines, then the
+    faces, with a ``o``/``g``, ``usemtl`` or ``s`` line wherever the face's
+    group, material or smoothing group changes."""
+    values = cloud.face_attributes if cloud.faces is not None else {}
+    info = cloud.meta.get("obj", {})
+    for key in _OBJ_SWITCH:
+        if key in values and len(values[key]) and values[key].max() >= len(info.get(key, ())):
+            raise PointCloudError(f"cannot write {path!r}: face attribute {key!r} holds an "
+                                  f"index with no name in the input's {key} names")
     with open(path, "w", encoding="utf-8") as f:
         f.write(f"# written by pcprep: {len(cloud)} vertices\n")
+        for lib in info.get("mtllib", ()) if "material" in values else ():
+            f.write(f"mtllib {lib}\n")
         if cloud.normals is not None:
             for row in cloud.normals:
                 f.write("vn " + " ".join(_FMT % v for v in row) + "\n")
         cols = cloud.points if cloud.colors is None else np.c_[cloud.points, cloud.colors[:, :3]]
         for row in cols:
             f.write("v " + " ".join(_FMT % v for v in row) + "\n")
-        if cloud.faces is not None:
-            for a, b, c in cloud.faces + 1:
-                f.write(f"f {a} {b} {c}\n")
+        if cloud.faces is None:
+            return
+        tex = values.get("texcoord")
+        if tex is not None and np.shape(tex)[1:] != (6,):
+            raise PointCloudError(f"cannot write {path!r}: OBJ holds a u v per corner, the "
+                                  f"faces' texcoord holds {np.shape(tex)[1]} values per face")
+        if tex is not None:
+            np.savetxt(f, np.asarray(tex, np.float64).reshape(-1, 2), fmt=f"vt {_FMT} {_FMT}")
+        rows = cloud.faces + 1
+        if tex is not None:  # v/vt, the corners' vt lines in face order
+            t = np.arange(1, 3 * len(rows) + 1).reshape(-1, 3)
+            rows = np.stack([rows, t], axis=2).reshape(len(rows), 6)
+            fmt = "f %d/%d %d/%d %d/%d"
+        else:
+            fmt = "f %d %d %d"
+        keys = [k for k in _OBJ_SWITCH if k in values]
+        state = np.stack([np.asarray(values[k]) for k in keys], axis=1) if keys else None
+        starts = [0] if state is None else \
+            [0, *(np.flatnonzero((np.diff(state, axis=0) != 0).any(axis=1)) + 1)]
+        for a, b in zip(starts, [*starts[1:], len(rows)]):
+            for j, key in enumerate(keys):
+                i = int(state[a, j])
+                if i >= 0 and (a == 0 or state[a - 1, j] != i):
+                    f.write(f"{_OBJ_SWITCH[key]}{info[key][i]}\n")
+            np.savetxt(f, rows[a:b], fmt=fmt)
 
 
 def _write_off(cloud: Cloud, path: str) -> None:
