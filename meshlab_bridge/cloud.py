@@ -130,6 +130,9 @@ class FieldRanges:
             got = self._fields.setdefault(
                 name, [str(a.dtype) + shape, None, None, 0 if a.dtype == bool else None, 0])
             got[4] += a.size
+            if a.dtype == object:  # a PLY list per point
+                got[0] = "list"
+                continue
             if a.dtype == bool:
                 got[3] += int(a.sum())
                 continue
@@ -144,6 +147,8 @@ class FieldRanges:
         for name, (dtype, lo, hi, trues, size) in self._fields.items():
             if size == 0:
                 text = "empty"
+            elif dtype == "list":
+                text = "a list per point"
             elif trues is not None:
                 text = f"{trues} true of {size}"
             elif lo is None:

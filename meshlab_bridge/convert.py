@@ -63,6 +63,8 @@ def cloud_to_mesh(cloud: Cloud):
     ``add_cloud_layer`` instead (see there)."""
     import pymeshlab
 
+    for name, values in cloud.attributes.items():  # before any layer is made
+        _check_scalar(name, np.asarray(values))
     kwargs = {"vertex_matrix": np.ascontiguousarray(cloud.points, dtype=np.float64)}
     if cloud.faces is not None and len(cloud.faces):
         kwargs["face_matrix"] = np.ascontiguousarray(cloud.faces, dtype=np.int32)
@@ -84,6 +86,7 @@ def add_attribute(mesh, name: str, values) -> None:
     attribute, anything else as float64 scalar columns (``name``, or ``name_k``
     for the k-th column of a wider array)."""
     values = np.asarray(values)
+    _check_scalar(name, values)
     if values.ndim == 2 and values.shape[1] == 3:
         mesh.add_vertex_custom_point_attribute(np.ascontiguousarray(values, np.float64), name)
         return
@@ -107,6 +110,13 @@ def face_attribute_columns(name: str, width: int | None) -> list[str]:
     return [name] if width is None else [f"{name}_{k}" for k in range(width)]
 
 
+def _check_scalar(name: str, values: np.ndarray) -> None:
+    if values.dtype == object:
+        raise PointCloudError(f"per-vertex {name!r} holds a list per point (a PLY list "
+                              "property), which a MeshLab layer has no attribute for; "
+                              "pcprep keeps it in its filter commands from PLY to PLY")
+
+
 def _scalar_columns(name: str, values: np.ndarray):
     """A per-point attribute as float64 scalar columns (``name``, or ``name_k``)."""
     if values.ndim == 1:
@@ -122,6 +132,8 @@ def add_cloud_layer(ms, cloud: Cloud, label: str = "") -> int:
     made from a ``Mesh`` that already carried Python-added attributes crashes
     MeshLab's expression filters (``compute_coord_by_function`` and the like).
     """
+    for name, values in cloud.attributes.items():  # before the layer is added
+        _check_scalar(name, np.asarray(values))
     ms.add_mesh(cloud_to_mesh(cloud.with_(attributes={}, face_attributes={})),
                 label or cloud.label or "cloud")
     mesh = ms.current_mesh()

@@ -1669,3 +1669,44 @@ def test_obj_texture_coordinates_materials_and_groups_are_kept(tmp_path):
     (tmp_path / "w.obj").write_text(_OBJ.replace("vt 0.5 0.5", "vt 0.5 0.5 0.25"))
     assert formats.read_cloud(tmp_path / "w.obj").meta["face_properties"] == (
         "texture coordinates (u v w)",)
+
+
+@pytest.mark.filterwarnings("ignore:loadtxt")  # plyfile's, on an ASCII row's empty list
+@pytest.mark.parametrize("text", [False, True])
+def test_a_vertex_list_property_is_kept_in_ply_and_refused_elsewhere(tmp_path, text):
+    # a list per point (plyfile's list property on the vertices) was read
+    # and then failed every write with NumPy's "truth value" message, after
+    # the run; it is now written back as the list it was, in one piece and in
+    # a tiled run (which reads such a file whole), and refused before any
+    # work by formats that have no place for it
+    import pcprep
+    from pcprep.meshlab_bridge import tiles
+
+    g = np.random.default_rng(4)
+    p = g.normal(size=(2000, 3))
+    v = np.empty(2000, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("tags", "O")])
+    v["x"], v["y"], v["z"] = (p / np.linalg.norm(p, axis=1)[:, None]).T
+    v["tags"] = [np.arange(i % 4, dtype="i2") for i in range(2000)]
+    src = tmp_path / "in.ply"
+    PlyData([PlyElement.describe(v, "vertex", len_types={"tags": "u2"},
+                                 val_types={"tags": "i2"})], text=text).write(str(src))
+    formats.write_cloud(formats.read_cloud(src), tmp_path / "same.ply")
+    assert (tmp_path / "same.ply").read_bytes() == src.read_bytes()
+    for name, tiled in (("one.ply", []), ("tiled.ply", ["--tiles", "500", "--workers", "1"])):
+        assert main(["outliers", str(src), str(tmp_path / name), "--quiet", *tiled]) == 0
+    assert (tmp_path / "tiled.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+    out = PlyData.read(str(tmp_path / "one.ply"))["vertex"]
+    kept = np.flatnonzero(np.isin(v["x"], out["x"]))
+    assert 0 < len(kept) < 2000
+    assert [list(t) for t in out["tags"]] == [list(v["tags"][i]) for i in kept]
+    assert str(out.ply_property("tags")) == "property list ushort short tags"
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
+        assert main(["saliency", str(src), str(tmp_path / "o.las"), "--quiet",
+                     "--tiles", "500", "--workers", "1"]) == 1
+    with pytest.raises(PointCloudError, match="tags hold a list per point"):
+        formats.write_cloud(formats.read_cloud(src), tmp_path / "o.pcd")
+    ms = pcprep.MeshSet()
+    with pytest.raises(PointCloudError, match="'tags' holds a list per point"):
+        ms.load_new_mesh(str(src))
+    assert ms.mesh_number() == 0  # no layer half made

@@ -199,6 +199,11 @@ def check_kept(cloud: Cloud, path: str) -> None:
 
         have["attributes"] = any(k not in (*_WRITABLE, *_RGB, "scan_index")
                                  for k in cloud.attributes)
+    lists = [k for k, v in cloud.attributes.items() if np.asarray(v).dtype == object]
+    if lists and ext != ".ply":
+        raise PointCloudError(
+            f"cannot write {path!r}: the input's per-vertex {', '.join(lists)} hold a list "
+            f"per point (a PLY list property), which only .ply stores")
     lost = [k for k, v in have.items() if v and k not in CAN_STORE[ext]]
     if lost:
         what = ", ".join(sorted(cloud.attributes)) if lost == ["attributes"] else " and ".join(

@@ -26,6 +26,7 @@ from __future__ import annotations
 import io
 import itertools
 import os
+import warnings
 
 import numpy as np
 
@@ -88,7 +89,9 @@ def load(path: str):
                 f.seek(0)  # faces of other sizes, or a damaged file
         if ply is None:
             try:
-                ply = PlyData.read(f)
+                with warnings.catch_warnings():  # an empty list of an ASCII row is valid
+                    warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+                    ply = PlyData.read(f)
             except PlyParseError as exc:
                 raise PointCloudError(f"cannot read {path!r}: {exc}") from exc
         if "vertex" not in ply:
@@ -175,6 +178,8 @@ def vertex_cloud(data: np.ndarray, ply, path: str, count: int | None = None) -> 
         "text": bool(ply.text), "byte_order": ply.byte_order,
         "comments": list(ply.comments), "obj_info": list(ply.obj_info),
         "types": {n: data.dtype[n].str for n in names}, "order": names,
+        "lists": {p.name: (p.len_dtype, p.val_dtype) for p in ply["vertex"].properties
+                  if _is_list(p)},
         "other_elements": {}, "face_types": face_types(ply),
         "n_vertices": ply["vertex"].count if count is None else count},
         "face_properties": ()}
@@ -194,6 +199,12 @@ def face_types(ply) -> dict:
         return {}
     return {p.name: (p.len_dtype, p.val_dtype) if _is_list(p) else p.val_dtype
             for p in el.properties if p.name != key}
+
+
+def vertex_lists(ply) -> list[str]:
+    """The vertex element's list properties (kept as object attributes,
+    read and written whole: a list has no fixed place in a row)."""
+    return [p.name for p in ply["vertex"].properties if _is_list(p)]
 
 
 def _is_list(prop) -> bool:
@@ -544,6 +555,8 @@ def _fits(values: np.ndarray, dtype: np.dtype) -> bool:
 
 def _column(values: np.ndarray, original: str | None) -> np.ndarray:
     values = np.asarray(values)
+    if values.dtype == object:  # a list per row, written as the list property it was
+        return values
     if values.dtype == bool:
         values = values.astype(np.uint8)
     if original is not None and _fits(values, np.dtype(original)):
@@ -558,8 +571,11 @@ def write(cloud: Cloud, path: str) -> None:
 
     cols = vertex_columns(cloud)
     vertex = vertex_rows(cols, {n: v.dtype for n, v in cols.items()})
-    elements = [PlyElement.describe(vertex, "vertex")]
     info = cloud.meta.get("ply", {})
+    lists = {n: info.get("lists", {}).get(n, ("u1", "f8")) for n, v in cols.items()
+             if v.dtype == object}  # a vertex list property, as it was read
+    elements = [PlyElement.describe(vertex, "vertex", len_types={n: t[0] for n, t in lists.items()},
+                                    val_types={n: t[1] for n, t in lists.items()})]
     face = None
     if cloud.faces is not None and len(cloud.faces):
         layout = face_layout(cloud.face_attributes, info)
@@ -567,7 +583,7 @@ def write(cloud: Cloud, path: str) -> None:
         elements.append(face)
     others = kept_elements(info.get("other_elements", {}).values(), len(cloud), info)
     elements += others
-    if info.get("text") and len(elements) == 1:  # plyfile's bytes, by NumPy
+    if info.get("text") and len(elements) == 1 and not lists:  # plyfile's bytes, by NumPy
         with open(path, "wb") as f:
             f.write(header({n: v.dtype for n, v in cols.items()}, len(vertex), info))
             for s in range(0, len(vertex), TEXT_BLOCK):

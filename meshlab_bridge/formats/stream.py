@@ -390,7 +390,7 @@ def _block_reader(src: str):
         return lambda size: ((s, ply.vertex_cloud(rows, head[0], src, head[1]))
                              for s, rows in ply.ascii_vertex_blocks(src, size, head))
     ply_data = _ply_mmap(src) if ext == ".ply" else None
-    if ply_data is None or ply.mesh_tail(ply_data, src) is None:
+    if ply_data is None or ply.mesh_tail(ply_data, src) is None or ply.vertex_lists(ply_data):
         return None  # faces that are not all triangles, or lists in another element
 
     def ply_blocks(size):
