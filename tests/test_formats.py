@@ -42,6 +42,10 @@ def _random_las(path, fmt, n=400, seed=0, version=None):
     xy = g.uniform(0, 20_000, (n, 2)).astype(np.int64)
     las.X, las.Y = xy[:, 0], xy[:, 1]
     las.Z = (2000 * np.sin(xy[:, 0] / 3000.0)).astype(np.int64) + 5000
+    if header.version.minor >= 4:  # an extended VLR after the points
+        from laspy.vlrs.vlrlist import VLRList
+
+        las.evlrs = VLRList([laspy.VLR("pcprep_test", 7, "an evlr", b"after the points")])
     las.write(str(path))
     return path
 
@@ -1710,3 +1714,27 @@ def test_a_vertex_list_property_is_kept_in_ply_and_refused_elsewhere(tmp_path, t
     with pytest.raises(PointCloudError, match="'tags' holds a list per point"):
         ms.load_new_mesh(str(src))
     assert ms.mesh_number() == 0  # no layer half made
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_extended_vlrs_survive_a_streamed_write(tmp_path, ext):
+    # laspy's writer leaves a LAS 1.4 file's EVLRs to its caller: a tiled
+    # run wrote its result without them, the one-piece run with them
+    from pcprep.meshlab_bridge import registry
+    from pcprep.meshlab_bridge.formats import stream
+
+    registry.load_all()
+    src = _random_las(tmp_path / f"in{ext}", 6, n=3000)
+    want = [(v.user_id, v.record_id, v.record_data) for v in laspy.read(str(src)).evlrs]
+    assert want == [("pcprep_test", 7, b"after the points")]
+    n = 3000
+    runs = {"outliers": {"keep_idx": np.arange(0, n, 3)},  # kept records copied
+            "saliency": {"saliency": np.linspace(0, 1, n)}}  # records rebuilt
+    for name, fields in runs.items():
+        spec = registry.get(name)
+        dst = tmp_path / f"{name}{ext}"
+        stream.write_streamed(spec, src, dst, fields, size=1000)
+        got = laspy.read(str(dst))
+        assert [(v.user_id, v.record_id, v.record_data) for v in got.evlrs] == want, name
+        assert len(got.points) == len(next(iter(fields.values())))
+

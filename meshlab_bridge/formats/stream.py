@@ -419,7 +419,8 @@ def _results(spec, blocks, fields: dict, keep, dst: str):
 
 def _write_las(outputs, dst: str, header=None) -> int:
     """LAS/LAZ block by block under ``header`` (by default the input's; new
-    results as extra dimensions) with laspy's writer."""
+    results as extra dimensions) with laspy's writer, then the input's
+    extended VLRs (laspy's writer leaves them to its caller)."""
     import laspy
 
     from . import las
@@ -437,6 +438,8 @@ def _write_las(outputs, dst: str, header=None) -> int:
                 rec = las.record(out, header, las.output_columns(out, header), dst)
                 writer.write_points(rec.points)
                 written += len(out)
+            if writer is not None and getattr(header, "evlrs", None):
+                writer.write_evlrs(header.evlrs)  # after the points, as las.write does
         finally:
             if writer is not None:
                 writer.close()
@@ -555,6 +558,8 @@ def _write_kept_records(src: str, dst: str, keep: _Kept, size: int) -> int:
                 writer.write_points(rows)
                 written += len(rows)
                 start += len(pts)
+            if reader.evlrs:
+                writer.write_evlrs(reader.evlrs)
     return written
 
 
