@@ -1738,3 +1738,22 @@ def test_extended_vlrs_survive_a_streamed_write(tmp_path, ext):
         assert [(v.user_id, v.record_id, v.record_data) for v in got.evlrs] == want, name
         assert len(got.points) == len(next(iter(fields.values())))
 
+
+
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "500", "--workers", "1"]])
+def test_an_organised_pcd_keeps_its_grid_where_every_row_stays(tmp_path, tiled):
+    # WIDTH x HEIGHT (a depth camera's image grid) was written as WIDTH n
+    # HEIGHT 1; a filter that keeps every row in its place now keeps it, and
+    # its viewpoint, and a removal writes the rows it kept as one line
+    g = np.random.default_rng(3)
+    u, v = np.meshgrid(np.arange(40), np.arange(30))
+    pts = np.c_[u.ravel(), v.ravel(), 0.05 * g.random(1200)].astype(np.float32)
+    pts[7] = [500, 500, 500]  # one far point for the removal
+    head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 40\n"
+            "HEIGHT 30\nVIEWPOINT 1 2 3 1 0 0 0\nPOINTS 1200\nDATA binary\n")
+    (tmp_path / "grid.pcd").write_bytes(head.encode() + pts.tobytes())
+    for name, want in (("saliency", "WIDTH 40\nHEIGHT 30\n"), ("outliers", "WIDTH 1199\nHEIGHT 1\n")):
+        dst = tmp_path / f"{name}.pcd"
+        assert main([name, str(tmp_path / "grid.pcd"), str(dst), "--quiet", *tiled]) == 0
+        text = dst.read_bytes()[:600].decode("ascii", "replace")
+        assert want in text and "VIEWPOINT 1 2 3 1 0 0 0" in text, name

@@ -250,10 +250,15 @@ def records(cloud: Cloud) -> np.ndarray:
 
 def header(dtype: np.dtype, count: int, info: dict) -> bytes:
     """The PCD 0.7 header of ``count`` binary records of ``dtype`` (the input's
-    viewpoint kept); the records follow it."""
+    viewpoint kept, and its organisation, WIDTH × HEIGHT, where every row is
+    kept in its place); the records follow it."""
     kinds = {"f": "F", "u": "U", "i": "I"}
     fields = dtype.names
     view = " ".join(info.get("viewpoint") or ["0", "0", "0", "1", "0", "0", "0"])
+    width, height = count, 1
+    grid = [int(v[0]) for v in (info.get("width"), info.get("height")) if v]
+    if len(grid) == 2 and grid[0] * grid[1] == count:
+        width, height = grid
     return "\n".join([
         "# .PCD v0.7 - Point Cloud Data file format (written by pcprep)",
         "VERSION 0.7",
@@ -261,5 +266,5 @@ def header(dtype: np.dtype, count: int, info: dict) -> bytes:
         "SIZE " + " ".join(str(dtype[f].base.itemsize) for f in fields),
         "TYPE " + " ".join(kinds[dtype[f].base.kind] for f in fields),
         "COUNT " + " ".join(str(dtype[f].shape[0] if dtype[f].shape else 1) for f in fields),
-        f"WIDTH {count}", "HEIGHT 1", f"VIEWPOINT {view}", f"POINTS {count}",
+        f"WIDTH {width}", f"HEIGHT {height}", f"VIEWPOINT {view}", f"POINTS {count}",
         "DATA binary", ""]).encode("ascii")
