@@ -197,7 +197,8 @@ def _cmd_info(path: str) -> None:
     rows = spacing_rows(pts) if len(pts) > SPACING_K else None
     extent = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else None
     _print_info(path, cloud.meta, len(pts) + len(dropped), dropped, extent, rows,
-                describe(cloud), None if cloud.faces is None else len(cloud.faces))
+                describe(cloud), None if cloud.faces is None else len(cloud.faces),
+                tuple(cloud.face_attributes))
 
 
 def _faces_kept(tri, dropped: list) -> int | None:
@@ -212,10 +213,12 @@ def _faces_kept(tri, dropped: list) -> int | None:
     return kept or None
 
 
-def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
+def _print_info(path, meta, n, dropped, extent, rows, fields, faces, kept=None) -> None:
     """What ``pcprep info`` prints, from the file's ``meta``, its row count,
     the non-finite rows left out, the finite rows' bounding box, their
-    spacing rows (``neighbors.spacing_rows``) and ``describe``'s fields."""
+    spacing rows (``neighbors.spacing_rows``), ``describe``'s fields, the
+    face count and the face attributes ``kept`` (by default those a PLY's
+    header names, for a mesh read in blocks)."""
     from pcprep.filters.neighbors import (ISOLATED_FACTOR, SPACING_K, count_isolated,
                                           spacing_from_rows)
 
@@ -227,7 +230,8 @@ def _print_info(path, meta, n, dropped, extent, rows, fields, faces) -> None:
         lines.append("non-finite points: 0")
     if faces is not None:
         lost = meta.get("face_properties", ())
-        kept = [k for k in meta.get("ply", {}).get("face_types", {}) if k not in lost]
+        if kept is None:
+            kept = [k for k in meta.get("ply", {}).get("face_types", {}) if k not in lost]
         notes = ([f"with {', '.join(kept)}"] if kept else []) + (
             [f"carrying {', '.join(lost)}, which pcprep does not write"] if lost else [])
         lines.append(f"faces: {faces}" + (f" ({'; '.join(notes)})" if notes else ""))

@@ -1478,11 +1478,13 @@ def test_face_attributes_are_kept_on_each_triangle(tmp_path, text):
         ("texcoord", "property list uchar float texcoord")]
     again = formats.read_cloud(tmp_path / "out.ply")
     for k, v in cloud.face_attributes.items():
-        assert np.array_equal(again.face_attributes[k], v) and again.face_attributes[k].dtype == v.dtype
+        assert np.array_equal(again.face_attributes[k], v)
+        assert again.face_attributes[k].dtype == v.dtype
     keep = np.setdiff1d(np.arange(60), [4])  # vertex 4 goes: the quad's first triangle with it
     cut = cloud.subset(keep)
     assert np.array_equal(cut.face_attributes["red"], [10, 20, 30])
-    assert np.array_equal(cut.face_attributes["texcoord"], cloud.face_attributes["texcoord"][[0, 2, 3]])
+    assert np.array_equal(cut.face_attributes["texcoord"],
+                          cloud.face_attributes["texcoord"][[0, 2, 3]])
     pts = np.asarray(CLOUD_60, np.float64)
     far = np.vstack([pts, [[1e6, 1e6, 1e6]]])  # a far point the outlier filter removes
     v = np.array([tuple(p) for p in far], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
@@ -1636,7 +1638,7 @@ f -3/-3 -2/-2 -1/-1
 """
 
 
-def test_obj_texture_coordinates_materials_and_groups_are_kept(tmp_path):
+def test_obj_texture_coordinates_materials_and_groups_are_kept(tmp_path, capsys):
     # each triangle of a face's fan gets the u v of its corners and the
     # object, group, material and smoothing group in force; written back as
     # the lines that give them, cut with the faces by a removal, and refused
@@ -1670,6 +1672,9 @@ def test_obj_texture_coordinates_materials_and_groups_are_kept(tmp_path):
         formats.write_cloud(cloud, tmp_path / "b.ply")
     formats.write_cloud(formats.drop_face_properties(cloud), tmp_path / "b.ply")
     assert not formats.read_cloud(tmp_path / "b.ply").face_attributes
+    assert main(["info", str(tmp_path / "a.obj")]) == 0
+    assert "faces: 4 (with texcoord, object, group, material, smoothing)" in (
+        capsys.readouterr().out)
     (tmp_path / "w.obj").write_text(_OBJ.replace("vt 0.5 0.5", "vt 0.5 0.5 0.25"))
     assert formats.read_cloud(tmp_path / "w.obj").meta["face_properties"] == (
         "texture coordinates (u v w)",)
@@ -1752,7 +1757,8 @@ def test_an_organised_pcd_keeps_its_grid_where_every_row_stays(tmp_path, tiled):
     head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 40\n"
             "HEIGHT 30\nVIEWPOINT 1 2 3 1 0 0 0\nPOINTS 1200\nDATA binary\n")
     (tmp_path / "grid.pcd").write_bytes(head.encode() + pts.tobytes())
-    for name, want in (("saliency", "WIDTH 40\nHEIGHT 30\n"), ("outliers", "WIDTH 1199\nHEIGHT 1\n")):
+    for name, want in (("saliency", "WIDTH 40\nHEIGHT 30\n"),
+                       ("outliers", "WIDTH 1199\nHEIGHT 1\n")):
         dst = tmp_path / f"{name}.pcd"
         assert main([name, str(tmp_path / "grid.pcd"), str(dst), "--quiet", *tiled]) == 0
         text = dst.read_bytes()[:600].decode("ascii", "replace")

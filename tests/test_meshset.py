@@ -233,7 +233,8 @@ def test_face_attributes_ride_through_meshlab_and_pcprep_filters(part, tmp_path,
     assert np.array_equal(same.faces, cloud.faces[:, [1, 0, 2]])
     for k, v in cloud.face_attributes.items():
         assert np.array_equal(v, values[k])
-        assert np.array_equal(same.face_attributes[k], v) and same.face_attributes[k].dtype == v.dtype
+        assert np.array_equal(same.face_attributes[k], v)
+        assert same.face_attributes[k].dtype == v.dtype
     out = ms.apply_filter("meshing_remove_point_outliers")
     assert out["removed"] >= 3
     ms.save_current_mesh(str(tmp_path / "removed.ply"))

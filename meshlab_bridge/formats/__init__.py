@@ -34,6 +34,7 @@ import numpy as np
 from pcprep.filters._validation import PointCloudError
 
 from ..cloud import Cloud
+from . import text
 
 #: extension -> module that reads and writes it
 _MODULES = {
@@ -57,8 +58,7 @@ CAN_STORE = {
 
 
 #: the face attributes each format that stores faces writes (PLY: any)
-FACE_ATTRIBUTES = {".off": ("red", "green", "blue", "alpha"),
-                   ".obj": ("texcoord", "object", "group", "material", "smoothing")}
+FACE_ATTRIBUTES = {".off": text.OFF_FACE, ".obj": text.OBJ_FACE}
 
 
 def _module(ext: str):
@@ -257,8 +257,9 @@ def check_faces(count: int, path, properties=(), kept=(), named=()) -> None:
     """Refuse to write ``count`` faces to a format that stores points alone
     (LAS, LAZ, PCD, XYZ, E57); faces that carry ``properties`` (what the
     reader found on the faces besides their vertices and could not keep:
-    OBJ texture coordinates and materials, OFF face colours, a PLY list
-    whose length is not a number of values per corner); and faces with the
+    OBJ texture coordinates on some faces only or with a w, OBJ normals per
+    corner, an OFF colour-map index, a PLY list whose length is not a
+    number of values per corner); and faces with the
     attributes ``kept`` (``Cloud.face_attributes``: PLY face colours,
     quality, texture coordinates, …) to a format that does not hold them
     (``_unwritable``; ``named``: those that index names an OBJ file gave,

@@ -415,12 +415,12 @@ def face_values(values, sizes: np.ndarray, is_list: bool):
         flat = values.reshape(-1)
     if (sizes == 3).all():
         return flat.reshape(len(values), 3 * c).copy()
-    corners = _fan_corners(sizes)
+    corners = fan_corners(sizes)
     cols = (c * corners)[:, :, None] + np.arange(c)
     return flat[cols.reshape(len(corners), 3 * c)]
 
 
-def _fan_corners(sizes: np.ndarray) -> np.ndarray:
+def fan_corners(sizes: np.ndarray) -> np.ndarray:
     """(t, 3) places, among all corners of polygons of ``sizes`` vertices
     listed one polygon after another, of the corners of each triangle of
     their fans (``fan_triangles``)."""
@@ -537,7 +537,7 @@ def fan_triangles(polygons) -> np.ndarray:
     sizes = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
     flat = (np.concatenate(polygons).astype(np.int64, copy=False) if len(polygons)
             else np.empty(0, np.int64))
-    return flat[_fan_corners(sizes)]
+    return flat[fan_corners(sizes)]
 
 
 def _fits(values: np.ndarray, dtype: np.dtype) -> bool:
@@ -714,9 +714,10 @@ def mesh_tail(ply, path: str):
     """What a binary PLY (``load``) holds besides its vertices, for a write in
     blocks: ``(triangles, others)``, the memory-mapped faces as the triangles
     ``read`` makes of them, with their other properties, slice by slice
-    (``_Fan``; None without faces), and the other elements in file order.  None where the file is read whole: a face element
-    read row by row (faces of other or mixed sizes) or another element with a
-    list property.  A face that refers to a vertex that does not exist is
+    (``_Fan``; None without faces), and the other elements in file order.
+    None where the file is read whole: a face element read row by row (faces
+    of other or mixed sizes, or another list on the faces) or another element
+    with a list property.  A face that refers to a vertex that does not exist is
     refused as ``read`` refuses it."""
     others = _other_elements(ply)
     if any(_has_list(el) for el in others):

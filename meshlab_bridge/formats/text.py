@@ -10,10 +10,11 @@ digits, so pcprep does these itself: a malformed row is an error naming its line
 XYZ holds ``x y z`` or ``x y z nx ny nz`` per line (``#`` comments).  OBJ keeps
 ``v x y z [r g b]``, ``vn`` (as vertex normals when there is one per vertex),
 ``f`` (polygons fan-triangulated; ``i/j/k`` indices and negative indices
-understood) and what the faces carry (``vt`` texture coordinates, ``o``, ``g``,
-``usemtl``, ``s``, ``mtllib``; ``_read_obj``).  OFF, COFF, NOFF and CNOFF keep positions, normals, colours and
-faces, and a colour per face (``r g b [a]`` after its indices, integers 0–255
-or floats 0–1) as the face attributes ``red green blue [alpha]``.
+understood) and what the faces carry (``vt`` texture coordinates, ``o``,
+``g``, ``usemtl``, ``s``, ``mtllib``; ``_read_obj``).  OFF, COFF, NOFF and
+CNOFF keep positions, normals, colours and faces, and a colour per face
+(``r g b [a]`` after its indices, integers 0–255 or floats 0–1) as the face
+attributes ``red green blue [alpha]``.
 """
 
 from __future__ import annotations
@@ -108,8 +109,9 @@ def _read_obj(path: str) -> Cloud:
     PLY uses), ``object`` (``o``), ``group`` (``g``), ``material``
     (``usemtl``) and ``smoothing`` (``s``), the last four as indices into the
     names in ``meta["obj"]`` (with the ``mtllib`` lines; -1 before the first
-    such line), so that a write gives the lines back.  What is not kept is named in ``meta["face_properties"]``:
-    texture coordinates on some faces only or with a w, normals per corner."""
+    such line), so that a write gives the lines back.  What is not kept is
+    named in ``meta["face_properties"]``: texture coordinates on some faces
+    only or with a w, normals per corner."""
     verts, cols, vns, vts = [], [], [], []
     faces, corner_vt, n_tri, state = [], [], [], []
     keys = {"o": "object", "g": "group", "usemtl": "material", "s": "smoothing"}
@@ -182,7 +184,7 @@ def _read_obj(path: str) -> Cloud:
 
 def _obj_face_values(path, corner_vt, n_tri, vts, w_used, state, seen):
     """``(face attributes, unkept names)`` of an OBJ's faces (``_read_obj``)."""
-    from .ply import _fan_corners
+    from .ply import fan_corners
 
     values, lost = {}, []
     n_tri = np.asarray(n_tri, dtype=np.int64)
@@ -197,7 +199,7 @@ def _obj_face_values(path, corner_vt, n_tri, vts, w_used, state, seen):
             raise PointCloudError(f"cannot read {path!r}: a face refers to a texture "
                                   f"coordinate that does not exist ({len(vts)} of them)")
         sizes = np.fromiter(map(len, corner_vt), dtype=np.int64, count=len(corner_vt))
-        uv = np.asarray(vts, dtype=np.float64)[flat[_fan_corners(sizes)]]  # (t, 3, 2)
+        uv = np.asarray(vts, dtype=np.float64)[flat[fan_corners(sizes)]]  # (t, 3, 2)
         values["texcoord"] = uv.reshape(len(uv), 6)
     table = np.repeat(np.asarray(state, dtype=np.int32).reshape(-1, 4), n_tri, axis=0)
     for j, key in enumerate(("object", "group", "material", "smoothing")):
