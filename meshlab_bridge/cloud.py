@@ -82,6 +82,10 @@ class Cloud:
         if info.get("other_elements"):  # which input rows remain: the writer renumbers edges
             rows = info.get("kept_rows")
             meta = {**meta, "ply": {**info, "kept_rows": idx if rows is None else rows[idx]}}
+        if "obj" in meta:  # an OBJ's polylines and point groups, renumbered and cut
+            from .formats.text import chains_after
+
+            meta = {**meta, "obj": chains_after(meta["obj"], idx, len(self.points))}
         return replace(self, points=self.points[idx], normals=take(self.normals),
                        colors=take(self.colors), quality=take(self.quality), faces=faces,
                        attributes={k: v[idx] for k, v in self.attributes.items()},

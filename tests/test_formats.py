@@ -1763,3 +1763,36 @@ def test_an_organised_pcd_keeps_its_grid_where_every_row_stays(tmp_path, tiled):
         assert main([name, str(tmp_path / "grid.pcd"), str(dst), "--quiet", *tiled]) == 0
         text = dst.read_bytes()[:600].decode("ascii", "replace")
         assert want in text and "VIEWPOINT 1 2 3 1 0 0 0" in text, name
+
+
+@pytest.mark.parametrize("tiled", [[], ["--tiles", "500", "--workers", "1"]])
+def test_obj_polylines_and_point_groups_are_kept_and_cut_by_a_removal(tmp_path, tiled):
+    # `l` and `p` lines were read past without a word; they are written back,
+    # a polyline cut where it meets a removed vertex (pieces of 2 vertices or
+    # more kept), a point group without the removed ones; refused by formats
+    # that have no place for them unless --drop-elements, before any work
+    from pcprep.meshlab_bridge import tiles
+
+    g = np.random.default_rng(6)
+    p = g.normal(size=(1500, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    p[10] = [40, 40, 40]  # a far point the outlier filter removes
+    lines = "l 9 10 11 12 13\nl 13 1\np 2 11 4\np 11\n"
+    src = tmp_path / "in.obj"
+    src.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in p.tolist()) + lines)
+    cloud = formats.read_cloud(src)
+    assert [r.tolist() for r in cloud.meta["obj"]["polylines"]] == [[8, 9, 10, 11, 12], [12, 0]]
+    assert [r.tolist() for r in cloud.meta["obj"]["point groups"]] == [[1, 10, 3], [10]]
+    formats.write_cloud(cloud, tmp_path / "same.obj")
+    assert (tmp_path / "same.obj").read_text().endswith(lines)
+    assert main(["outliers", str(src), str(tmp_path / "out.obj"), "--quiet", *tiled]) == 0
+    out = formats.read_cloud(tmp_path / "out.obj")
+    assert len(out) == 1499
+    assert [r.tolist() for r in out.meta["obj"]["polylines"]] == [[8, 9], [10, 11], [11, 0]]
+    assert [r.tolist() for r in out.meta["obj"]["point groups"]] == [[1, 3]]
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(tiles, "dask_client", lambda **kw: pytest.fail("a cluster started"))
+        assert main(["outliers", str(src), str(tmp_path / "out.ply"), "--quiet", *tiled]) == 1
+    assert not (tmp_path / "out.ply").exists()
+    assert main(["outliers", str(src), str(tmp_path / "out.ply"), "--quiet", "--drop-elements",
+                 *tiled]) == 0

@@ -214,6 +214,12 @@ def check_kept(cloud: Cloud, path: str) -> None:
             f"cannot write {path!r}: the {ext} format cannot store the input's per-vertex "
             f"{what}; use .ply, .las/.laz or .pcd, which keep every attribute")
     named = cloud.meta.get("obj", {})
+    chains = [k for k in text.OBJ_CHAINS.values() if named.get(k)]
+    if chains and ext != ".obj":
+        raise PointCloudError(
+            f"cannot write {path!r}: the input OBJ's {' and '.join(chains)} (l, p lines) "
+            f"have no place in a {ext} file; drop them explicitly (CLI: --drop-elements; "
+            "Python: formats.drop_elements(cloud))")
     check_faces(0 if cloud.faces is None else len(cloud.faces), path,
                 cloud.meta.get("face_properties", ()), tuple(cloud.face_attributes),
                 tuple(k for k in cloud.face_attributes if k in named))
@@ -246,11 +252,15 @@ def check_elements(lost, path) -> None:
 
 def drop_elements(cloud: Cloud) -> Cloud:
     """``cloud`` to be written without the PLY elements it was read with
-    besides its vertices and faces (``check_elements``)."""
-    info = cloud.meta.get("ply")
-    if not info or not info.get("other_elements"):
-        return cloud
-    return cloud.with_(meta={**cloud.meta, "ply": {**info, "other_elements": {}}})
+    besides its vertices and faces (``check_elements``), or an OBJ's
+    polylines and point groups."""
+    meta = cloud.meta
+    if meta.get("ply", {}).get("other_elements"):
+        meta = {**meta, "ply": {**meta["ply"], "other_elements": {}}}
+    if any(meta.get("obj", {}).get(k) for k in text.OBJ_CHAINS.values()):
+        meta = {**meta, "obj": {k: v for k, v in meta["obj"].items()
+                                if k not in text.OBJ_CHAINS.values()}}
+    return cloud if meta is cloud.meta else cloud.with_(meta=meta)
 
 
 def check_faces(count: int, path, properties=(), kept=(), named=()) -> None:

@@ -109,7 +109,8 @@ def _read_obj(path: str) -> Cloud:
     PLY uses), ``object`` (``o``), ``group`` (``g``), ``material``
     (``usemtl``) and ``smoothing`` (``s``), the last four as indices into the
     names in ``meta["obj"]`` (with the ``mtllib`` lines; -1 before the first
-    such line), so that a write gives the lines back.  What is not kept is
+    such line), so that a write gives the lines back; ``l`` and ``p`` lines
+    as lists of vertex rows there too (``OBJ_CHAINS``).  What is not kept is
     named in ``meta["face_properties"]``: texture coordinates on some faces
     only or with a w, normals per corner."""
     verts, cols, vns, vts = [], [], [], []
@@ -118,6 +119,7 @@ def _read_obj(path: str) -> Cloud:
     names = {k: [] for k in keys.values()}
     now = {k: -1 for k in keys.values()}
     mtllib, w_used, seen = [], False, set()
+    chains = {"l": [], "p": []}  # polylines and point groups, as vertex rows
     with open(path, encoding="utf-8", errors="replace") as f:
         for no, line in enumerate(f, 1):
             tok = line.split("#", 1)[0].split()
@@ -161,6 +163,15 @@ def _read_obj(path: str) -> Cloud:
                 seen.add(key)
             elif tok[0] == "mtllib":
                 mtllib.append(" ".join(tok[1:]))
+            elif tok[0] in chains:
+                try:
+                    idx = [int(t.split("/")[0]) for t in tok[1:]]
+                except ValueError:
+                    raise PointCloudError(f"cannot read {path!r}: line {no}: {tok[0]} "
+                                          f"{' '.join(tok[1:])!r} is not numeric") from None
+                n = len(verts)
+                chains[tok[0]].append(np.array([i - 1 if i > 0 else n + i for i in idx],
+                                               dtype=np.int64))
     if not verts:
         raise PointCloudError(f"cannot read {path!r}: the file holds no vertices")
     pts = np.array(verts, dtype=np.float64)
@@ -176,8 +187,13 @@ def _read_obj(path: str) -> Cloud:
     if tri is not None:
         values, lost = _obj_face_values(path, corner_vt, n_tri, vts, w_used, state, seen)
         lost += ["normals per corner"] * (len(vns) > 0 and normals is None)
+    for key, rows in chains.items():
+        if any(len(r) and (r.min() < 0 or r.max() >= len(pts)) for r in rows):
+            raise PointCloudError(f"cannot read {path!r}: a {key} line refers to a vertex "
+                                  f"that does not exist ({len(pts)} vertices)")
     meta = {"format": ".obj", "face_properties": tuple(lost),
-            "obj": {"mtllib": mtllib, **{k: v for k, v in names.items() if k in seen}}}
+            "obj": {"mtllib": mtllib, **{k: v for k, v in names.items() if k in seen},
+                    **{OBJ_CHAINS[k]: v for k, v in chains.items() if v}}}
     return Cloud(pts, normals, colors, None, tri, label=os.path.basename(path), meta=meta,
                  face_attributes=values)
 
@@ -293,6 +309,36 @@ def _write_xyz(cloud: Cloud, path) -> None:
     np.savetxt(path, cols, fmt=_FMT)
 
 
+#: an OBJ's statements that list vertex rows besides faces, by their key in
+#: ``meta["obj"]``: ``l`` polylines, ``p`` point groups (``chains_after``)
+OBJ_CHAINS = {"l": "polylines", "p": "point groups"}
+
+
+def chains_after(info: dict, idx: np.ndarray, n: int) -> dict:
+    """``meta["obj"]`` after a subset that kept rows ``idx`` of ``n``: each
+    polyline renumbered and cut where it meets a removed vertex (the pieces
+    of two vertices or more kept), each point group renumbered without the
+    removed vertices (empty ones left out)."""
+    if not any(info.get(k) for k in OBJ_CHAINS.values()):
+        return info
+    new = np.full(n, -1, dtype=np.int64)
+    new[idx] = np.arange(len(idx))
+    out = dict(info)
+    for key, least in (("polylines", 2), ("point groups", 1)):
+        kept = []
+        for rows in info.get(key, ()):
+            r = new[rows]
+            if key == "point groups":
+                pieces = [r[r >= 0]]
+            else:
+                pieces = np.split(r, np.flatnonzero(r < 0))
+                pieces = [p[p >= 0] for p in pieces]
+            kept += [p for p in pieces if len(p) >= least]
+        if key in info:
+            out[key] = kept
+    return out
+
+
 #: the face attributes an OBJ file holds: ``texcoord`` (u v per corner) as
 #: ``vt`` lines, the others as the lines that switch them, by their names in
 #: ``meta["obj"]``
@@ -302,15 +348,19 @@ _OBJ_SWITCH = {"object": "o ", "group": "g ", "material": "usemtl ", "smoothing"
 
 def _write_obj(cloud: Cloud, path: str) -> None:
     """The lines ``_read_obj`` reads back: the ``mtllib`` lines, normals,
-    vertices, a face's three texture coordinates as ``vt`` lines, then the
-    faces, with a ``o``/``g``, ``usemtl`` or ``s`` line wherever the face's
-    group, material or smoothing group changes."""
+    vertices, a face's three texture coordinates as ``vt`` lines, the faces,
+    with a ``o``/``g``, ``usemtl`` or ``s`` line wherever the face's group,
+    material or smoothing group changes, then the ``l`` and ``p`` lines."""
     values = cloud.face_attributes if cloud.faces is not None else {}
     info = cloud.meta.get("obj", {})
     for key in _OBJ_SWITCH:
         if key in values and len(values[key]) and values[key].max() >= len(info.get(key, ())):
             raise PointCloudError(f"cannot write {path!r}: face attribute {key!r} holds an "
                                   f"index with no name in the input's {key} names")
+    tex = values.get("texcoord")
+    if tex is not None and np.shape(tex)[1:] != (6,):
+        raise PointCloudError(f"cannot write {path!r}: OBJ holds a u v per corner, the "
+                              f"faces' texcoord holds {np.shape(tex)[1]} values per face")
     with open(path, "w", encoding="utf-8") as f:
         f.write(f"# written by pcprep: {len(cloud)} vertices\n")
         for lib in info.get("mtllib", ()) if "material" in values else ():
@@ -321,31 +371,36 @@ def _write_obj(cloud: Cloud, path: str) -> None:
         cols = cloud.points if cloud.colors is None else np.c_[cloud.points, cloud.colors[:, :3]]
         for row in cols:
             f.write("v " + " ".join(_FMT % v for v in row) + "\n")
-        if cloud.faces is None:
-            return
-        tex = values.get("texcoord")
-        if tex is not None and np.shape(tex)[1:] != (6,):
-            raise PointCloudError(f"cannot write {path!r}: OBJ holds a u v per corner, the "
-                                  f"faces' texcoord holds {np.shape(tex)[1]} values per face")
-        if tex is not None:
-            np.savetxt(f, np.asarray(tex, np.float64).reshape(-1, 2), fmt=f"vt {_FMT} {_FMT}")
-        rows = cloud.faces + 1
-        if tex is not None:  # v/vt, the corners' vt lines in face order
-            t = np.arange(1, 3 * len(rows) + 1).reshape(-1, 3)
-            rows = np.stack([rows, t], axis=2).reshape(len(rows), 6)
-            fmt = "f %d/%d %d/%d %d/%d"
-        else:
-            fmt = "f %d %d %d"
-        keys = [k for k in _OBJ_SWITCH if k in values]
-        state = np.stack([np.asarray(values[k]) for k in keys], axis=1) if keys else None
-        starts = [0] if state is None else \
-            [0, *(np.flatnonzero((np.diff(state, axis=0) != 0).any(axis=1)) + 1)]
-        for a, b in zip(starts, [*starts[1:], len(rows)]):
-            for j, key in enumerate(keys):
-                i = int(state[a, j])
-                if i >= 0 and (a == 0 or state[a - 1, j] != i):
-                    f.write(f"{_OBJ_SWITCH[key]}{info[key][i]}\n")
-            np.savetxt(f, rows[a:b], fmt=fmt)
+        if cloud.faces is not None:
+            _write_obj_faces(f, cloud, values, info)
+        for key, word in (("polylines", "l"), ("point groups", "p")):
+            for rows in info.get(key, ()):
+                f.write(word + " " + " ".join(str(int(i) + 1) for i in rows) + "\n")
+
+
+def _write_obj_faces(f, cloud: Cloud, values: dict, info: dict) -> None:
+    """The ``vt`` and ``f`` lines of ``_write_obj``, with the lines that switch
+    a face's object, group, material and smoothing group."""
+    tex = values.get("texcoord")
+    if tex is not None:
+        np.savetxt(f, np.asarray(tex, np.float64).reshape(-1, 2), fmt=f"vt {_FMT} {_FMT}")
+    rows = cloud.faces + 1
+    if tex is not None:  # v/vt, the corners' vt lines in face order
+        t = np.arange(1, 3 * len(rows) + 1).reshape(-1, 3)
+        rows = np.stack([rows, t], axis=2).reshape(len(rows), 6)
+        fmt = "f %d/%d %d/%d %d/%d"
+    else:
+        fmt = "f %d %d %d"
+    keys = [k for k in _OBJ_SWITCH if k in values]
+    state = np.stack([np.asarray(values[k]) for k in keys], axis=1) if keys else None
+    starts = [0] if state is None else \
+        [0, *(np.flatnonzero((np.diff(state, axis=0) != 0).any(axis=1)) + 1)]
+    for a, b in zip(starts, [*starts[1:], len(rows)]):
+        for j, key in enumerate(keys):
+            i = int(state[a, j])
+            if i >= 0 and (a == 0 or state[a - 1, j] != i):
+                f.write(f"{_OBJ_SWITCH[key]}{info[key][i]}\n")
+        np.savetxt(f, rows[a:b], fmt=fmt)
 
 
 def _write_off(cloud: Cloud, path: str) -> None:
