@@ -95,9 +95,10 @@ def _add_drop_options(p, result: str) -> None:
                         "indices, face properties written to OBJ, all but a colour to OFF)")
     p.add_argument("--drop-elements", action="store_true",
                    help=f"write {result} without the input PLY's elements besides its "
-                        "vertices and faces (edges, cameras, range grids, …), which other "
-                        "formats cannot hold and a removal would leave a range grid "
-                        "pointing at the wrong rows")
+                        "vertices and faces (edges, cameras, range grids, …) or the input "
+                        "OBJ's polylines and point groups (l, p), which other formats "
+                        "cannot hold and a removal would leave a range grid pointing at "
+                        "the wrong rows")
 
 
 def _add_scale_options(p, same: str) -> None:
