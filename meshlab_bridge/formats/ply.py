@@ -476,14 +476,12 @@ def renumbered(el, kept, increasing: bool = False):
 
     data = np.asarray(el.data)
     refs = [p.name for p in el.properties if p.name.startswith("vertex")]
-    keep = np.ones(len(data), dtype=bool)
-    new = {}
-    for name in refs:
-        new[name], found = _positions(np.asarray(data[name], np.int64), kept, increasing)
-        keep &= found
+    new, found = _positions(np.column_stack([np.asarray(data[n], np.int64) for n in refs]),
+                            kept, increasing)  # every reference in one search
+    keep = found.all(axis=1)
     data = data[keep].copy()
-    for name in refs:
-        data[name] = new[name][keep]
+    for j, name in enumerate(refs):
+        data[name] = new[keep, j]
     lists = [p for p in el.properties if _is_list(p)]
     return PlyElement.describe(data, el.name, len_types={p.name: p.len_dtype for p in lists},
                                val_types={p.name: p.val_dtype for p in lists},
@@ -495,7 +493,7 @@ def _positions(values: np.ndarray, kept, increasing: bool):
     ``kept``, found by binary search (the rows in ``kept`` sorted first
     unless ``increasing``)."""
     if not len(kept):
-        return np.zeros_like(values), np.zeros(len(values), dtype=bool)
+        return np.zeros_like(values), np.zeros(values.shape, dtype=bool)
     kept = kept if increasing else np.asarray(kept)
     order = None if increasing else np.argsort(kept, kind="stable")
     sorted_rows = kept if order is None else kept[order]
@@ -797,8 +795,7 @@ def kept_triangles(tri, kept, size: int = TEXT_BLOCK, values: bool = False):
             continue
         if len(kept) == 0:
             return
-        pos = np.searchsorted(kept, part)
-        found = np.asarray(kept[np.minimum(pos, len(kept) - 1)]) == part
+        pos, found = _positions(part, kept, increasing=True)
         whole = found.all(axis=1)
         yield (pos[whole], {k: v[whole] for k, v in vals.items()}) if values else pos[whole]
 

@@ -514,8 +514,8 @@ def _write_ply(outputs, dst: str, tail=None, keep=None) -> int:
 
     kept_rows = None if keep is None else keep.idx
     written = ply.kept_elements(others, count, info, kept_rows, increasing=True)
-    check_elements([el.name for el in others if el.name not in {w.name for w in written}],
-                   dst)
+    names = {w.name for w in written}
+    check_elements([el.name for el in others if el.name not in names], dst)
     others = written
     written = 0
     with _temporary(dst) as tmp, open(tmp, "wb") as f:
